@@ -1,0 +1,102 @@
+"""Argument groups and output helpers shared by the subcommands."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from ..design import PATTERNS, LatticeDesign
+from ..errors import ParameterError
+
+_DESIGN_ARGS = [
+    # flag, field, type, help
+    ("--width", "width_mm", float, "channel width w (mm); 0 = uniform hydrogel layer"),
+    ("--thickness", "thickness_mm", float, "conductive-layer thickness t (mm)"),
+    ("--pitch", "pitch_mm", float, "channel pitch p (mm)"),
+    ("--pattern", "pattern", str, f"lattice pattern ({', '.join(PATTERNS)})"),
+    ("--sensor-size", "size_mm", float, "sensor side L (mm)"),
+    ("--total-thickness", "total_thickness_mm", float, "stack thickness H (mm)"),
+    ("--sealing", "sealing_mm", float, "sealing-layer thickness (mm)"),
+    ("--electrodes", "n_electrodes", int, "number of electrodes (multiple of 4)"),
+    ("--electrode-width", "electrode_width_mm", float, "electrode width (mm)"),
+]
+
+
+def add_design_args(parser: argparse.ArgumentParser) -> None:
+    """Add the :class:`LatticeDesign` fields as options (unset ones keep the design defaults)."""
+    defaults = LatticeDesign()
+    g = parser.add_argument_group("design (mm)")
+    for flag, field, typ, text in _DESIGN_ARGS:
+        g.add_argument(flag, dest=field, type=typ, default=None,
+                       help=f"{text}; default {getattr(defaults, field)}")
+
+
+def design_from_args(args: argparse.Namespace) -> LatticeDesign:
+    given = {f: getattr(args, f) for _, f, _, _ in _DESIGN_ARGS if getattr(args, f, None) is not None}
+    return LatticeDesign(**given)
+
+
+def add_mesh_args(parser: argparse.ArgumentParser) -> None:
+    from ..mesh import MESHERS, MeshSettings
+
+    d = MeshSettings()
+    g = parser.add_argument_group("mesh")
+    g.add_argument("--mesher", default=None, help=f"one of {', '.join(MESHERS)}; default {d.mesher}")
+    g.add_argument("--size", dest="mesh_size_mm", type=float, default=None,
+                   help=f"target element size (mm); default {d.size_mm}")
+    g.add_argument("--channel-cells", type=int, default=None,
+                   help=f"grid: minimum cells across a channel; default {d.channel_cells}")
+    g.add_argument("--layer-cells", type=int, default=None,
+                   help=f"grid: minimum cells through the conductive layer; default {d.layer_cells}")
+    g.add_argument("--epsilon", dest="epsilon_rel", type=float, default=None,
+                   help=f"tetwild: envelope relative to the bounding-box diagonal; default {d.epsilon_rel}")
+    g.add_argument("--no-cache", action="store_true", help="do not read or write the mesh cache")
+    g.add_argument("--cache-dir", type=Path, default=None, help="mesh cache folder (default ./meshes)")
+
+
+def mesh_settings_from_args(args: argparse.Namespace):
+    from ..mesh import MeshSettings
+
+    names = {"mesher": "mesher", "mesh_size_mm": "size_mm", "channel_cells": "channel_cells",
+             "layer_cells": "layer_cells", "epsilon_rel": "epsilon_rel"}
+    return MeshSettings(**{f: getattr(args, a) for a, f in names.items() if getattr(args, a, None) is not None})
+
+
+def mesh_from_args(args: argparse.Namespace):
+    from ..mesh import mesh_design
+
+    cache = False if args.no_cache else args.cache_dir
+    return mesh_design(design_from_args(args), mesh_settings_from_args(args), cache_dir=cache)
+
+
+def parse_output(path: str | None, suffixes: tuple[str, ...], name: str = "-o") -> Path | None:
+    if path is None:
+        return None
+    p = Path(path)
+    if p.suffix.lower() not in suffixes:
+        raise ParameterError(name, f"a file name ending in {' or '.join(suffixes)}", path)
+    return p
+
+
+def _jsonable(obj):
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _jsonable(obj.tolist())
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, Path):
+        return str(obj)
+    return obj
+
+
+def emit_json(obj: dict) -> None:
+    """Print one JSON object on stdout."""
+    json.dump(_jsonable(obj), sys.stdout)
+    sys.stdout.write("\n")

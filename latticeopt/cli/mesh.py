@@ -1,0 +1,60 @@
+"""``latticeopt mesh`` and ``latticeopt render``."""
+
+from __future__ import annotations
+
+import time
+
+from ._common import add_design_args, add_mesh_args, emit_json, mesh_from_args, parse_output
+
+
+def register(sub) -> None:
+    p = sub.add_parser("mesh", help="mesh a design and print a summary",
+                       description="Mesh a design (cached by content hash) and print a summary.")
+    add_design_args(p)
+    add_mesh_args(p)
+    p.add_argument("-o", "--output", default=None, help="write the mesh as VTU (ParaView) to this file")
+    p.add_argument("--json", action="store_true", help="print one JSON object instead of text")
+    p.set_defaults(func=run_mesh)
+
+    r = sub.add_parser("render", help="render a design's mesh to a PNG (off-screen)",
+                       description="Render the meshed lattice with the sealing layer cut away.")
+    add_design_args(r)
+    add_mesh_args(r)
+    r.add_argument("-o", "--output", default="sensor.png", help="PNG file (default sensor.png)")
+    r.add_argument("--show-sealing", action="store_true", help="draw the sealing layer (translucent)")
+    r.set_defaults(func=run_render)
+
+
+def run_mesh(args) -> int:
+    out = parse_output(args.output, (".vtu",))
+    t0 = time.perf_counter()
+    mesh = mesh_from_args(args)
+    summary = mesh.summary()
+    summary.update({"mesher": mesh.info["mesher"], "cached": mesh.info.get("cached", False),
+                    "seconds": time.perf_counter() - t0, "build_seconds": mesh.info.get("build_seconds")})
+    if out is not None:
+        mesh.to_vtu(out)
+        summary["output"] = str(out)
+    if args.json:
+        emit_json(summary)
+        return 0
+    vols = summary["region_volumes_mm3"]
+    areas = summary["electrode_areas_mm2"]
+    print(f"{summary['mesher']} mesh: {summary['nodes']} nodes, {summary['tets']} tets "
+          f"({'cache' if summary['cached'] else 'built'} in {summary['seconds']:.2f} s)")
+    print("region volumes (mm^3): " + ", ".join(f"{k} {v:.1f}" for k, v in vols.items()))
+    print(f"electrode areas (mm^2): min {min(areas):.3f}, max {max(areas):.3f} over {len(areas)}")
+    print(f"min tet quality (mean ratio): {summary['min_quality']:.3f}")
+    if out is not None:
+        print(f"wrote {out}")
+    return 0
+
+
+def run_render(args) -> int:
+    from ..render import render_mesh
+
+    out = parse_output(args.output, (".png",))
+    mesh = mesh_from_args(args)
+    render_mesh(mesh, out, show_sealing=args.show_sealing)
+    print(f"wrote {out}")
+    return 0
