@@ -98,7 +98,7 @@ def tag_facets(nodes: np.ndarray, tets: np.ndarray, region: np.ndarray, design: 
     facets : dict name -> (K, 3) int64
     weights : dict name -> (K,) float, only for electrode sets with partially covered triangles
     """
-    L, H = design.size_mm, design.total_thickness_mm
+    H = design.total_thickness_mm
     outer = boundary_faces(tets)
     n_out = _normals(nodes, outer)
     zs = nodes[outer][:, :, 2]
