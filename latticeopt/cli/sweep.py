@@ -1,0 +1,71 @@
+"""``latticeopt sweep``: run a study file (resumable, parallel, optionally on a dask cluster)."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "sweep", help="run a study (grid of designs x phantoms) into a resumable results store",
+        description="Run every design x phantom of a study TOML file that its results store does not hold "
+                    "yet, in parallel, writing each result the moment it finishes. Re-run the same command "
+                    "after an interruption to resume. Schema: docs/studies.md.")
+    p.add_argument("study", metavar="STUDY.toml", help="study file (e.g. studies/quick.toml)")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a study key; dotted for tables, value in TOML syntax "
+                        "(e.g. --set mesh.size_mm=3 --set grid.width_mm=[0,4]); repeatable")
+    p.add_argument("--jobs", "-j", type=int, default=None, help="worker processes (default: the study's jobs)")
+    p.add_argument("--backend", choices=("local", "dask"), default="local",
+                   help="local processes (default) or a dask.distributed cluster")
+    p.add_argument("--scheduler", default=None, metavar="ADDR",
+                   help="dask scheduler address, e.g. tcp://10.0.0.5:8786 (with --backend dask; "
+                        "default: a local cluster)")
+    p.add_argument("--out", default=None, help="output folder (default: the study's out)")
+    p.add_argument("--evaluate", default=None, metavar="MODULE:FUNCTION",
+                   help="model evaluating one phantom (same as --set model=...; default "
+                        "latticeopt.coupled:evaluate_phantom)")
+    p.add_argument("--retry-failed", action="store_true", help="re-run phantoms stored as failed")
+    p.add_argument("--dry-run", action="store_true", help="validate the study, print what would run, and stop")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=run_sweep_command)
+
+
+def run_sweep_command(args: argparse.Namespace) -> int:
+    import json
+    from pathlib import Path
+
+    from ..errors import ParameterError
+    from ..store import ResultStore
+    from ..study import load_study
+    from ..sweep import run_sweep
+
+    overrides = list(args.overrides)
+    if args.evaluate is not None:
+        overrides.append(f"model={json.dumps(args.evaluate)}")
+    if args.out is not None:
+        overrides.append(f"out={json.dumps(args.out)}")
+    study = load_study(args.study, overrides)
+    if args.jobs is not None and args.jobs < 1:
+        raise ParameterError("--jobs", "an integer >= 1", args.jobs)
+    if args.scheduler is not None and args.backend != "dask":
+        raise ParameterError("--scheduler", "no scheduler unless --backend dask", args.scheduler)
+    if args.dry_run:
+        stored = 0
+        if (Path(study.out_dir) / "results.sqlite").exists():
+            with ResultStore(study.out_dir, readonly=True) as store:
+                done = store.done_keys(study.settings.key)
+            stored = sum((d.content_hash(), p.key, study.settings.key) in done for d, p in study.tasks())
+        print(f"{study.name} ({study.kind}): {len(study.designs)} designs x {len(study.phantoms)} phantoms = "
+              f"{study.n_tasks} evaluations, {stored} stored; model {study.settings.model}; "
+              f"mesh {study.settings.mesh.mesher} {study.settings.mesh.size_mm:g} mm; out {study.out_dir}")
+        return 0
+    result = run_sweep(study, jobs=args.jobs, backend=args.backend, scheduler=args.scheduler,
+                       progress=not args.no_progress, retry_failed=args.retry_failed)
+    print(f"{result.computed} computed, {result.skipped} already stored, {result.failed} failed in total, "
+          f"{result.seconds:.1f} s")
+    for line in result.report:
+        print(line)
+    for name, path in result.outputs.items():
+        print(f"wrote {name}: {path}")
+    return 0

@@ -1,0 +1,284 @@
+"""Tables and figures of a finished sweep, computed from the stored evaluations only.
+
+Because everything here is a function of the store's rows (in the study's task order), a resumed sweep and
+an uninterrupted one produce the same files. Statistics use the ``'ok'`` rows only; failures are counted in
+their own column and never averaged in. Standard errors are ``std(ddof=1) / sqrt(n)`` over phantoms.
+
+Outputs (:func:`write_outputs`): ``results.csv`` (one row per design x phantom), ``summary.csv`` (per design:
+mean V_rel, standard error, n, failures, and the mean per touch count), ``vrel_lines.png`` (V_rel against the
+first of ``width_mm``/the first grid field, one line per value of the other grid fields, error bars = SE, the
+layout of the paper's Fig. 4), ``vrel_heatmap.png`` (two-field grids) and ``report.txt`` (the best design with
+its uncertainty and a paired comparison with the runner-up — paired because all designs see the same
+phantoms). Press studies write ``press.csv``, ``press.png`` and the ratios at the deepest depth instead of the
+summary and grid figures.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from .store import Evaluation
+from .study import Study
+
+__all__ = ["best_design", "plot_heatmap", "plot_lines", "plot_press", "press_curves", "press_ratios",
+           "results_rows", "summarize", "write_csv", "write_outputs"]
+
+
+def _mean_se(values: Sequence[float]) -> tuple[float, float]:
+    x = np.asarray(values, dtype=float)
+    if x.size == 0:
+        return math.nan, math.nan
+    se = float(np.std(x, ddof=1) / math.sqrt(x.size)) if x.size > 1 else math.nan
+    return float(np.mean(x)), se
+
+
+def _by_design(study: Study, evaluations: Sequence[Evaluation]) -> list[list[Evaluation]]:
+    n = len(study.phantoms)
+    return [list(evaluations[i * n:(i + 1) * n]) for i in range(len(study.designs))]
+
+
+def results_rows(study: Study, evaluations: Sequence[Evaluation]) -> list[dict]:
+    """One row per (design, phantom) in task order: grid fields, phantom, outcome, keys."""
+    rows = []
+    for (design, phantom), e in zip(study.tasks(), evaluations):
+        row = {f: getattr(design, f) for f in study.grid_fields}
+        row.update(phantom_index=phantom.index, n_touches=phantom.n_touches,
+                   touches=json.dumps([[t.x_mm, t.y_mm, t.radius_mm, t.depth_mm] for t in phantom.touches]),
+                   status=e.status, v_rel=e.v_rel, force_total_N=sum(e.forces_N) if e.forces_N else None,
+                   forces_N=json.dumps(list(e.forces_N)), seconds=e.seconds,
+                   error=(e.error or "").splitlines()[0] if e.error else "",
+                   design_key=e.design_key, phantom_key=e.phantom_key, settings_key=e.settings_key)
+        rows.append(row)
+    return rows
+
+
+def summarize(study: Study, evaluations: Sequence[Evaluation]) -> list[dict]:
+    """Per design: mean V_rel, standard error, n (ok), failures, and mean V_rel per touch count."""
+    counts = sorted({p.n_touches for p in study.phantoms})
+    out = []
+    for design, rows in zip(study.designs, _by_design(study, evaluations)):
+        ok = [e for e in rows if e.ok]
+        mean, se = _mean_se([e.v_rel for e in ok])
+        row = {f: getattr(design, f) for f in study.grid_fields}
+        row.update(v_rel_mean=mean, v_rel_se=se, n=len(ok), failed=len(rows) - len(ok))
+        for k in counts:
+            vals = [e.v_rel for e, p in zip(rows, study.phantoms) if e.ok and p.n_touches == k]
+            row[f"v_rel_mean_{k}touch"] = _mean_se(vals)[0]
+        row["design_key"] = design.content_hash()
+        out.append(row)
+    return out
+
+
+def best_design(study: Study, evaluations: Sequence[Evaluation]) -> dict | None:
+    """The design with the highest mean V_rel, with its SE and a paired comparison to the runner-up.
+
+    Returns ``None`` when no design has a result. ``paired_diff``/``paired_se`` are the mean and SE of
+    ``V_rel(best) - V_rel(runner-up)`` over the phantoms both evaluated: with common random numbers this
+    difference is far less noisy than the two SEs suggest.
+    """
+    summary = summarize(study, evaluations)
+    groups = _by_design(study, evaluations)
+    order = sorted((i for i, s in enumerate(summary) if s["n"] > 0), key=lambda i: -summary[i]["v_rel_mean"])
+    if not order:
+        return None
+    best = {"design": study.designs[order[0]], "summary": summary[order[0]]}
+    if len(order) > 1:
+        a, b = groups[order[0]], groups[order[1]]
+        diffs = [x.v_rel - y.v_rel for x, y in zip(a, b) if x.ok and y.ok]
+        d, se = _mean_se(diffs)
+        best.update(runner_up=study.designs[order[1]], runner_up_summary=summary[order[1]], paired_diff=d,
+                    paired_se=se, paired_n=len(diffs))
+    return best
+
+
+def write_csv(path: Path, rows: Sequence[dict]) -> Path:
+    """Write dict rows (same keys) as CSV; floats in full precision (``repr``)."""
+    with open(path, "w", newline="") as fh:
+        if rows:
+            w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+            w.writeheader()
+            w.writerows(rows)
+    return path
+
+
+def _label(design, fields) -> str:
+    parts = []
+    for f in fields:
+        val = getattr(design, f)
+        if f.endswith("_mm"):
+            parts.append(f"{f.removesuffix('_mm')} = {val:g} mm")
+        else:
+            parts.append(f"{f} = {val:g}" if isinstance(val, float) else f"{f} = {val}")
+    return ", ".join(parts)
+
+
+def _x_field(study: Study) -> str:
+    varying = [f for f, vals in study.grid if len(vals) > 1] or list(study.grid_fields) or ["width_mm"]
+    return "width_mm" if "width_mm" in varying else varying[0]
+
+
+def plot_lines(study: Study, summary: Sequence[dict], path: Path) -> Path:
+    """V_rel against one grid field, one line per combination of the others, error bars = SE."""
+    from matplotlib.figure import Figure
+
+    x_field = _x_field(study)
+    others = [f for f in study.grid_fields if f != x_field]
+    fig = Figure(figsize=(6.4, 4.4), layout="constrained")
+    ax = fig.add_subplot()
+    lines: dict[tuple, list] = {}
+    for design, s in zip(study.designs, summary):
+        lines.setdefault(tuple(getattr(design, f) for f in others), []).append((getattr(design, x_field), s, design))
+    for _, pts in lines.items():
+        pts.sort(key=lambda p: p[0])
+        ax.errorbar([p[0] for p in pts], [p[1]["v_rel_mean"] for p in pts],
+                    yerr=[0.0 if math.isnan(p[1]["v_rel_se"]) else p[1]["v_rel_se"] for p in pts],
+                    marker="o", capsize=3, label=_label(pts[0][2], others) or "all")
+    ax.set_xlabel(x_field.replace("_mm", " (mm)"))
+    ax.set_ylabel("mean $V_{rel}$ (± SE)")
+    ax.set_title(f"{study.name}: {len(study.phantoms)} phantoms per design")
+    ax.grid(alpha=0.3)
+    if len(lines) > 1:
+        ax.legend(fontsize="small")
+    fig.savefig(path, dpi=130)
+    return path
+
+
+def plot_heatmap(study: Study, summary: Sequence[dict], path: Path) -> Path | None:
+    """Mean V_rel over a two-field grid as an annotated heat map; ``None`` for other grids."""
+    varying = [(f, vals) for f, vals in study.grid if len(vals) > 1]
+    if len(varying) != 2:
+        return None
+    from matplotlib.figure import Figure
+
+    x_field = _x_field(study)
+    (y_field, y_vals), = [(f, vals) for f, vals in varying if f != x_field]
+    x_vals = dict(varying)[x_field]
+    xs, ys = sorted(x_vals), sorted(y_vals)
+    grid = np.full((len(ys), len(xs)), np.nan)
+    for design, s in zip(study.designs, summary):
+        grid[ys.index(getattr(design, y_field)), xs.index(getattr(design, x_field))] = s["v_rel_mean"]
+    fig = Figure(figsize=(6.4, 4.6), layout="constrained")
+    ax = fig.add_subplot()
+    im = ax.imshow(grid, origin="lower", cmap="viridis", aspect="auto")
+    ax.set_xticks(range(len(xs)), [f"{x:g}" for x in xs])
+    ax.set_yticks(range(len(ys)), [f"{y:g}" for y in ys])
+    ax.set_xlabel(x_field.replace("_mm", " (mm)"))
+    ax.set_ylabel(y_field.replace("_mm", " (mm)"))
+    finite = grid[np.isfinite(grid)]
+    mid = (finite.min() + finite.max()) / 2 if finite.size else 0.0
+    for (r, c), val in np.ndenumerate(grid):
+        if np.isfinite(val):
+            ax.text(c, r, f"{val:.4f}", ha="center", va="center", fontsize=7,
+                    color="black" if val > mid else "white")
+    fig.colorbar(im, ax=ax, label="mean $V_{rel}$")
+    ax.set_title(f"{study.name}: mean V_rel")
+    fig.savefig(path, dpi=130)
+    return path
+
+
+# -- press studies -----------------------------------------------------------------------------------------
+def press_curves(study: Study, evaluations: Sequence[Evaluation]) -> list[dict]:
+    """Rows ``(grid fields, depth_mm, v_rel, force_N, status)`` per design and depth."""
+    rows = []
+    for design, group in zip(study.designs, _by_design(study, evaluations)):
+        for phantom, e in zip(study.phantoms, group):
+            row = {f: getattr(design, f) for f in study.grid_fields}
+            row.update(depth_mm=phantom.touches[0].depth_mm, v_rel=e.v_rel,
+                       force_N=e.forces_N[0] if e.forces_N else None, status=e.status,
+                       design_key=e.design_key)
+            rows.append(row)
+    return rows
+
+
+def press_ratios(study: Study, evaluations: Sequence[Evaluation]) -> list[dict]:
+    """The study's ``[[press.compare]]`` ratios at the deepest depth, beside their reference values."""
+    groups = _by_design(study, evaluations)
+    out = []
+    for c in study.phantom_set.compare:
+        vals = []
+        for sel in (c.numerator, c.denominator):
+            i = next(i for i, d in enumerate(study.designs) if all(getattr(d, k) == val for k, val in sel))
+            last = groups[i][-1]
+            vals.append(last.v_rel if last.ok else math.nan)
+        ratio = vals[0] / vals[1] if vals[1] else math.nan
+        out.append({"label": c.label, "depth_mm": study.phantoms[-1].touches[0].depth_mm, "numerator": vals[0],
+                    "denominator": vals[1], "ratio": ratio, "reference": c.reference})
+    return out
+
+
+def plot_press(study: Study, evaluations: Sequence[Evaluation], path: Path) -> Path:
+    """V_rel against indentation depth, one curve per design (the paper's Fig. 8a layout)."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(6.0, 4.2), layout="constrained")
+    ax = fig.add_subplot()
+    depths = [p.touches[0].depth_mm for p in study.phantoms]
+    for design, group in zip(study.designs, _by_design(study, evaluations)):
+        ax.plot(depths, [e.v_rel if e.ok else np.nan for e in group], marker="o",
+                label=_label(design, study.grid_fields) or design.describe())
+    t = study.phantoms[0].touches[0]
+    ax.set_xlabel("indentation depth (mm)")
+    ax.set_ylabel("$V_{rel}$")
+    ax.set_title(f"{study.name}: r = {t.radius_mm:g} mm at ({t.x_mm:g}, {t.y_mm:g}) mm")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize="small")
+    fig.savefig(path, dpi=130)
+    return path
+
+
+# -- everything at once --------------------------------------------------------------------------------------
+def _fmt(design, fields) -> str:
+    return _label(design, fields) or design.describe()
+
+
+def write_outputs(study: Study, evaluations: Sequence[Evaluation], out: Path) -> tuple[dict, list[str]]:
+    """Write the tables, figures and ``report.txt`` of a study into ``out``.
+
+    Returns
+    -------
+    files : dict
+        Output name -> path.
+    lines : list of str
+        The text report (also in ``report.txt``), for the CLI to print.
+    """
+    out = Path(out)
+    files = {"results": write_csv(out / "results.csv", results_rows(study, evaluations))}
+    failed = sum(not e.ok for e in evaluations)
+    lines = [f"{study.name}: {len(study.designs)} designs x {len(study.phantoms)} phantoms = {len(evaluations)} "
+             f"evaluations, {failed} failed (failures are excluded from every mean)"]
+    if study.kind == "press":
+        files["press"] = write_csv(out / "press.csv", press_curves(study, evaluations))
+        files["press_plot"] = plot_press(study, evaluations, out / "press.png")
+        for r in press_ratios(study, evaluations):
+            ref = f"   (paper: {r['reference']:g})" if r["reference"] is not None else ""
+            lines.append(f"V_rel ratio at {r['depth_mm']:g} mm, {r['label']}: {r['numerator']:.5g} / "
+                         f"{r['denominator']:.5g} = {r['ratio']:.3f}{ref}")
+    else:
+        summary = summarize(study, evaluations)
+        files["summary"] = write_csv(out / "summary.csv", summary)
+        files["lines_plot"] = plot_lines(study, summary, out / "vrel_lines.png")
+        heat = plot_heatmap(study, summary, out / "vrel_heatmap.png")
+        if heat is not None:
+            files["heatmap"] = heat
+        best = best_design(study, evaluations)
+        if best is None:
+            lines.append("no design has a successful evaluation")
+        else:
+            s = best["summary"]
+            lines.append(f"best design: {_fmt(best['design'], study.grid_fields)}: mean V_rel = "
+                         f"{s['v_rel_mean']:.5f} ± {s['v_rel_se']:.5f} (SE, n = {s['n']}, {s['failed']} failed)")
+            if "runner_up" in best:
+                r = best["runner_up_summary"]
+                z = best["paired_diff"] / best["paired_se"] if best["paired_se"] else math.nan
+                lines.append(f"runner-up: {_fmt(best['runner_up'], study.grid_fields)}: {r['v_rel_mean']:.5f} ± "
+                             f"{r['v_rel_se']:.5f}; paired difference {best['paired_diff']:.5f} ± "
+                             f"{best['paired_se']:.5f} (SE over {best['paired_n']} common phantoms, z = {z:.1f})")
+    (out / "report.txt").write_text("\n".join(lines) + "\n")
+    files["report"] = out / "report.txt"
+    return files, lines

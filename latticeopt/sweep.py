@@ -1,0 +1,345 @@
+"""Run a study: every (design, phantom) pair not yet in the store, in parallel, written as it finishes.
+
+>>> from latticeopt.study import load_study
+>>> from latticeopt.sweep import run_sweep
+>>> result = run_sweep(load_study("studies/quick.toml"), jobs=2)  # doctest: +SKIP
+
+The model is a picklable top-level function ``evaluate(design, phantom, settings) -> dict`` (default: the
+study's ``model``, ``latticeopt.coupled:evaluate_phantom``); see :func:`result_to_evaluation` for the keys it
+returns. Workers only compute; the parent process is the store's single writer and commits each result in its
+own transaction the moment it arrives, so a sweep killed at any point resumes where it stopped and recomputes
+nothing stored. Tasks go out design-major (all phantoms of one design, then the next) through a window of a
+few tasks per worker, so each worker keeps meeting the design whose mesh and reference it has just loaded.
+
+Failures. An exception of a *failure type* (:data:`FAILURE_TYPES`: latticeopt's own errors such as
+:class:`ConvergenceError`, numerical and solver errors, out of memory) or a non-finite ``V_rel`` is stored as
+a ``'failed'`` row with its message and traceback and the sweep goes on; failures are counted and never
+averaged. Any other exception (``TypeError``, ``KeyError``, ...) is a bug in the model: the sweep writes what
+has arrived, stops and re-raises it.
+
+Backends. ``"local"``: with ``jobs == 1`` the tasks run in this process; with more, in a
+``ProcessPoolExecutor`` of fresh (``spawn``) processes that inherit ``OMP/MKL/OPENBLAS_NUM_THREADS=1`` from the
+environment set around the pool, so BLAS/MKL start single-threaded in every worker (each result records the
+thread counts the worker's loaded BLAS/OpenMP libraries report; more than one is logged as a warning).
+``"dask"``: dask.distributed futures on the cluster at ``scheduler`` (an address or a ``Client``); without one,
+a local cluster of ``jobs`` single-threaded worker processes (:mod:`latticeopt.execution`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import importlib
+import json
+import logging
+import math
+import os
+import signal
+import socket
+import threading
+import time
+import traceback
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .errors import LatticeoptError, ParameterError
+from .execution import BACKENDS, blas_threads, make_backend
+from .store import Evaluation, ResultStore, jsonable
+from .study import EvalSettings, Study
+
+__all__ = ["BACKENDS", "FAILURE_TYPES", "SweepResult", "blas_threads", "evaluate_designs", "resolve_model",
+           "result_to_evaluation", "run_sweep"]
+
+log = logging.getLogger(__name__)
+
+#: Exceptions that mean "this phantom failed" (recorded, sweep goes on); anything else is a bug and stops it.
+FAILURE_TYPES: tuple[type[BaseException], ...] = (LatticeoptError, ArithmeticError, ValueError, RuntimeError,
+                                                  MemoryError)
+_INFLIGHT_PER_WORKER = 2
+
+
+def _failure_types() -> tuple[type[BaseException], ...]:
+    try:  # the PARDISO wrapper raises a plain Exception subclass for singular/failed factorizations
+        from pypardiso.pardiso_wrapper import PyPardisoError
+    except ImportError:
+        return FAILURE_TYPES
+    return (*FAILURE_TYPES, PyPardisoError)
+
+
+def resolve_model(name: str) -> Callable:
+    """Import ``"module:function"`` (the study's ``model``)."""
+    module, _, func = name.partition(":")
+    try:
+        return getattr(importlib.import_module(module), func)
+    except (ImportError, AttributeError) as exc:
+        raise ParameterError("model", "an importable 'module:function' evaluating one phantom",
+                             f"{name} ({exc})") from None
+
+
+def _model_name(fn: Callable) -> str:
+    return f"{fn.__module__}:{fn.__qualname__}"
+
+
+def _evaluate_one(evaluate: Callable, design, phantom, settings: EvalSettings) -> dict:
+    """Worker side: run the model on one phantom; failures come back as data, bugs as exceptions."""
+    t0 = time.perf_counter()
+    try:
+        result = evaluate(design, phantom, settings)
+        status, error = "ok", None
+    except _failure_types() as exc:
+        result, status = {}, "failed"
+        error = f"{type(exc).__name__}: {exc}\n{traceback.format_exc()}"
+    worker = {"host": socket.gethostname(), "pid": os.getpid(), "blas_threads": blas_threads()}
+    return {"status": status, "result": result, "error": error, "seconds": time.perf_counter() - t0,
+            "worker": worker}
+
+
+def result_to_evaluation(payload: dict, design, phantom, settings: EvalSettings) -> Evaluation:
+    """Turn a worker's payload into a store row, checking the model's return value.
+
+    The model returns a dict with ``v_rel`` (float, required) and optionally ``voltages`` (array, V),
+    ``forces_N`` (one per touch, N), ``timings`` (name -> s); any other keys are kept in ``extra``. A
+    non-finite ``v_rel`` makes the row ``'failed'``; a missing ``v_rel`` or a non-dict is a bug
+    (:class:`LatticeoptError`).
+    """
+    common = dict(design_key=design.content_hash(), phantom_key=phantom.key, settings_key=settings.key,
+                  seconds=payload["seconds"], design=design.as_dict(), phantom=phantom.as_dict(),
+                  settings=settings.as_dict(), host=payload["worker"]["host"])
+    if payload["status"] == "failed":
+        return Evaluation(status="failed", error=payload["error"], extra={"worker": payload["worker"]}, **common)
+    res = payload["result"]
+    if not isinstance(res, dict) or "v_rel" not in res:
+        raise LatticeoptError(f"model {settings.model} returned {type(res).__name__} without 'v_rel' for "
+                              f"phantom {phantom.index} of {design.describe()}")
+    extra = {k: _jsonable_or_note(val) for k, val in res.items() if k not in ("v_rel", "voltages", "forces_N",
+                                                                             "timings")}
+    extra["worker"] = payload["worker"]
+    forces = tuple(float(f) for f in np.atleast_1d(np.asarray(res.get("forces_N", ()), dtype=float)))
+    volts = res.get("voltages")
+    volts = None if volts is None else np.asarray(volts, dtype=float).ravel()
+    v_rel = float(res["v_rel"])
+    if not math.isfinite(v_rel):
+        return Evaluation(status="failed", error=f"non-finite v_rel {v_rel!r}", forces_N=forces,
+                          timings=dict(res.get("timings", {})), voltages=volts, extra=extra, **common)
+    return Evaluation(status="ok", v_rel=v_rel, forces_N=forces, timings=dict(res.get("timings", {})),
+                      voltages=volts, extra=extra, **common)
+
+
+def _jsonable_or_note(value):
+    """Keep JSON-able extras (numpy scalars/arrays included); note, do not store, anything else."""
+    try:
+        json.dumps(jsonable(value))
+    except (TypeError, ValueError):
+        return f"<not stored: {type(value).__name__}>"
+    return jsonable(value)
+
+
+@contextlib.contextmanager
+def _sigterm_as_interrupt():
+    """Let ``kill PID`` stop a sweep like Ctrl-C does (in the main thread only)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum, frame):
+        raise KeyboardInterrupt(f"signal {signum}")
+
+    old = signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, old)
+
+
+# -- the runner -------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class SweepResult:
+    """What a sweep did and where its outputs are.
+
+    ``evaluations`` is in task order (:meth:`Study.tasks`), one stored row per task.
+    """
+
+    study: Study
+    settings: EvalSettings
+    out_dir: Path
+    evaluations: tuple[Evaluation, ...]
+    computed: int
+    skipped: int
+    seconds: float
+    outputs: dict = field(default_factory=dict)
+    report: tuple[str, ...] = ()
+
+    @property
+    def failed(self) -> int:
+        return sum(not e.ok for e in self.evaluations)
+
+
+def run_sweep(study: Study, evaluate: Callable | None = None, *, jobs: int | None = None, backend: str = "local",
+              scheduler=None, progress: bool = True, retry_failed: bool = False, out_dir: str | Path | None = None,
+              outputs: bool = True) -> SweepResult:
+    """Evaluate every (design, phantom) pair of ``study`` that the store does not hold yet.
+
+    Parameters
+    ----------
+    study
+        The validated study.
+    evaluate
+        Top-level, picklable ``evaluate(design, phantom, settings) -> dict``; ``None`` imports the study's
+        ``model``. A given function replaces ``settings.model`` (its ``module:qualname``), which is part of
+        the settings key, so different models never share rows.
+    jobs
+        Worker processes (default: the study's ``jobs``).
+    backend
+        ``"local"`` or ``"dask"``.
+    scheduler
+        Dask scheduler address (``"tcp://host:8786"``) or a ``distributed.Client``; ``None`` with
+        ``backend="dask"`` starts a local cluster.
+    progress
+        Show a tqdm progress bar with ETA on stderr.
+    retry_failed
+        Re-run phantoms whose stored row is ``'failed'`` (a success then replaces the failure).
+    out_dir
+        Output folder (default: the study's ``out``); holds ``results.sqlite`` and the reports.
+    outputs
+        Write CSV tables and figures at the end (:func:`latticeopt.report.write_outputs`).
+    """
+    t_start = time.perf_counter()
+    settings = study.settings
+    if evaluate is None:
+        evaluate = resolve_model(settings.model)
+    else:
+        settings = dataclasses.replace(settings, model=_model_name(evaluate))
+    out = Path(study.out_dir if out_dir is None else out_dir)
+    _check_run_args(study.jobs if jobs is None else jobs, backend, scheduler)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "study.json").write_text(json.dumps({**study.as_dict(), "settings": settings.as_dict(),
+                                                "settings_key": settings.key}, indent=1, default=str))
+    evaluations, computed = evaluate_designs(
+        study.designs, study.phantoms, settings, out, evaluate, jobs=study.jobs if jobs is None else jobs,
+        backend=backend, scheduler=scheduler, progress=progress, retry_failed=retry_failed, label=study.name)
+    files, report = {}, ()
+    if outputs:
+        from .report import write_outputs
+
+        files, report = write_outputs(study, evaluations, out)
+    return SweepResult(study=study, settings=settings, out_dir=out, evaluations=evaluations, computed=computed,
+                       skipped=len(evaluations) - computed, seconds=time.perf_counter() - t_start, outputs=files,
+                       report=tuple(report))
+
+
+def _check_run_args(jobs, backend, scheduler) -> None:
+    if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1:
+        raise ParameterError("jobs", "an integer >= 1", jobs)
+    if backend not in BACKENDS:
+        raise ParameterError("backend", "one of " + ", ".join(map(repr, BACKENDS)), backend)
+    if backend == "local" and scheduler is not None:
+        raise ParameterError("scheduler", "no scheduler with backend 'local' (use backend 'dask')", scheduler)
+
+
+def evaluate_designs(designs, phantoms, settings: EvalSettings, out_dir: str | Path, evaluate: Callable | None = None,
+                     *, jobs: int = 1, backend: str = "local", scheduler=None, progress: bool = False,
+                     retry_failed: bool = False, label: str = "evaluate") -> tuple[tuple[Evaluation, ...], int]:
+    """Evaluate every design on every phantom through the store in ``out_dir``; compute only what is missing.
+
+    The engine under :func:`run_sweep`, also meant for the optimizer: a design already evaluated (same
+    design, phantom and settings keys) is read from the store, not recomputed.
+
+    Parameters
+    ----------
+    designs, phantoms
+        Sequences of :class:`LatticeDesign` and :class:`Phantom`; tasks run design-major.
+    settings
+        The evaluation settings; ``settings.model`` must name ``evaluate`` when that is given (its key is
+        stored with every row).
+    out_dir
+        Folder of the results store.
+    evaluate
+        The model; ``None`` imports ``settings.model``.
+    jobs, backend, scheduler, progress, retry_failed
+        As in :func:`run_sweep`.
+    label
+        Name used in log messages.
+
+    Returns
+    -------
+    evaluations : tuple of Evaluation
+        One per (design, phantom), design-major.
+    computed : int
+        How many were computed now (the rest came from the store).
+    """
+    _check_run_args(jobs, backend, scheduler)
+    if evaluate is None:
+        evaluate = resolve_model(settings.model)
+    tasks = [(d, p) for d in designs for p in phantoms]
+    dkeys = {d: d.content_hash() for d in designs}
+    keys = [(dkeys[d], p.key, settings.key) for d, p in tasks]
+    with ResultStore(out_dir) as store:
+        done = store.done_keys(settings.key, include_failed=not retry_failed)
+        todo, seen = [], set(done)
+        for i, k in enumerate(keys):
+            if k not in seen:  # a task listed twice is computed once
+                todo.append(i)
+                seen.add(k)
+        log.info("%s: %d tasks, %d stored, %d to run", label, len(tasks), len(tasks) - len(todo), len(todo))
+        if todo:
+            _execute(tasks, todo, evaluate, settings, store, backend, jobs, scheduler, progress)
+        stored = store.lookup(keys)
+    missing = sum(k not in stored for k in keys)
+    if missing:  # only possible if the store was changed under us
+        raise LatticeoptError(f"{missing} evaluations missing from {store.path} after the run; run it again")
+    return tuple(stored[k] for k in keys), len(todo)
+
+
+def _execute(tasks, todo, evaluate, settings, store, backend, jobs, scheduler, progress) -> None:
+    from tqdm.auto import tqdm
+
+    runner = make_backend(backend, jobs, scheduler)
+    window = _INFLIGHT_PER_WORKER * runner.workers if runner.workers > 1 or backend == "dask" else 1
+    bar = tqdm(total=len(tasks), initial=len(tasks) - len(todo), unit="phantom", disable=not progress,
+               dynamic_ncols=True, desc="sweep")
+    queue = iter(todo)
+    pending: dict = {}
+    failed = 0
+    warned_threads = False
+    aborted = True
+    try:
+        with _sigterm_as_interrupt():
+            while True:
+                while len(pending) < window:
+                    i = next(queue, None)
+                    if i is None:
+                        break
+                    design, phantom = tasks[i]
+                    pending[runner.submit(_evaluate_one, evaluate, design, phantom, settings)] = i
+                if not pending:
+                    break
+                # Results first, then any task that raised: its .result() re-raises the model's bug and
+                # stops the sweep only after everything that did arrive is stored.
+                for fut in sorted(runner.wait_any(pending), key=lambda f: f.exception() is not None):
+                    i = pending.pop(fut)
+                    design, phantom = tasks[i]
+                    payload = fut.result()
+                    row = result_to_evaluation(payload, design, phantom, settings)
+                    store.put(row)
+                    failed += not row.ok
+                    if not row.ok:
+                        log.warning("phantom %d of %s failed: %s", phantom.index, design.describe(),
+                                    (row.error or "").splitlines()[0])
+                    many = {k: n for k, n in payload["worker"]["blas_threads"].items() if n > 1}
+                    if many and runner.workers > 1 and not warned_threads:
+                        log.warning("worker %s runs BLAS/OpenMP with more than one thread: %s",
+                                    payload["worker"]["pid"], many)
+                        warned_threads = True
+                    bar.update(1)
+                    bar.set_postfix(failed=failed, refresh=False)
+        aborted = False
+    except KeyboardInterrupt:
+        log.warning("interrupted: every finished phantom is stored in %s; run the same command to resume",
+                    store.path)
+        raise
+    finally:
+        bar.close()
+        runner.close(abort=aborted)

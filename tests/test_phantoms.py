@@ -1,0 +1,117 @@
+"""Random phantoms and press series: ranges, placement, non-overlap, reproducibility, stream contract."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from latticeopt.design import LatticeDesign
+from latticeopt.errors import ParameterError
+from latticeopt.phantoms import Phantom, phantom_rng, press_series, random_phantom, random_phantoms
+from latticeopt.touches import Touch, validate_touches
+
+L = 100.0
+
+
+@pytest.fixture(scope="module")
+def many() -> tuple[Phantom, ...]:
+    return random_phantoms(L, {1: 400, 2: 300, 3: 300}, seed=11)
+
+
+def test_ranges_on_sensor_and_no_overlap(many):
+    design = LatticeDesign()
+    for p in many:
+        validate_touches(design, p.touches)  # the mechanics' own check: on the sensor, no overlap, depth
+        for t in p.touches:
+            assert 6.25 <= t.radius_mm <= 8.75 and 1.0 <= t.depth_mm <= 5.0
+            assert t.radius_mm <= t.x_mm <= L - t.radius_mm and t.radius_mm <= t.y_mm <= L - t.radius_mm
+        for i, a in enumerate(p.touches):
+            for b in p.touches[:i]:
+                assert math.hypot(a.x_mm - b.x_mm, a.y_mm - b.y_mm) >= a.radius_mm + b.radius_mm
+    assert [p.n_touches for p in many] == [1] * 400 + [2] * 300 + [3] * 300
+
+
+def test_single_touch_distribution_is_uniform(many):
+    singles = [p.touches[0] for p in many if p.n_touches == 1]
+    r = np.array([t.radius_mm for t in singles])
+    d = np.array([t.depth_mm for t in singles])
+    ux = np.array([(t.x_mm - t.radius_mm) / (L - 2 * t.radius_mm) for t in singles])
+    for sample, (lo, hi) in ((r, (6.25, 8.75)), (d, (1.0, 5.0)), (ux, (0.0, 1.0))):
+        assert stats.kstest(sample, stats.uniform(lo, hi - lo).cdf).pvalue > 1e-3
+
+
+def test_min_gap_respected():
+    for p in random_phantoms(L, {3: 50}, seed=3, min_gap_mm=10.0):
+        a, b, c = p.touches
+        for u, w in ((a, b), (a, c), (b, c)):
+            assert math.hypot(u.x_mm - w.x_mm, u.y_mm - w.y_mm) >= u.radius_mm + w.radius_mm + 10.0
+
+
+def test_same_seed_same_phantoms_other_seed_other_phantoms():
+    a = random_phantoms(L, {1: 5, 2: 5, 3: 5}, seed=42)
+    b = random_phantoms(L, {3: 5, 1: 5, 2: 5}, seed=42)
+    c = random_phantoms(L, {1: 5, 2: 5, 3: 5}, seed=43)
+    assert a == b
+    assert {p.key for p in a}.isdisjoint(p.key for p in c)
+
+
+def test_phantom_i_does_not_depend_on_how_many_are_drawn():
+    few = random_phantoms(L, {1: 3, 2: 2}, seed=5)
+    more = random_phantoms(L, {1: 50, 2: 40, 3: 10}, seed=5)
+    assert few[:3] == more[:3]
+    assert few[3:5] == more[50:52]
+    assert random_phantom(L, 2, 17, seed=5) == more[50 + 17]
+
+
+def test_stream_is_the_documented_one():
+    """First draw = (PCG64 output >> 11) * 2^-53 mapped affinely: fixed algorithms, numpy-version independent."""
+    bits = np.random.PCG64(np.random.SeedSequence(9, spawn_key=(1, 4))).random_raw(4)
+    u = (bits >> np.uint64(11)).astype(float) * 2.0 ** -53
+    t = random_phantom(L, 1, 4, seed=9).touches[0]
+    r = 6.25 + 2.5 * u[0]
+    assert (t.radius_mm, t.depth_mm) == (r, 1.0 + 4.0 * u[1])
+    assert (t.x_mm, t.y_mm) == (r + (L - 2 * r) * u[2], r + (L - 2 * r) * u[3])
+    assert phantom_rng(9, 1, 4).random() == u[0]
+
+
+def test_key_and_json_round_trip():
+    p = random_phantom(L, 3, 2, seed=1)
+    back = Phantom.from_json(p.to_json())
+    assert back == p and back.key == p.key and back.n_touches == 3
+    moved = Phantom((Touch(1 + p.touches[0].x_mm, p.touches[0].y_mm, p.touches[0].radius_mm,
+                           p.touches[0].depth_mm), *p.touches[1:]), index=p.index)
+    assert moved.key != p.key
+    relabelled = Phantom(p.touches, index=99)
+    assert relabelled.key == p.key  # the key is the load, not the label
+    tampered = {**p.as_dict(), "key": "0" * 64}
+    with pytest.raises(ParameterError, match="phantom.key"):
+        Phantom.from_dict(tampered)
+
+
+def test_press_series():
+    series = press_series(50, 40, 8.75, [0.0, 1.0, 4.0])
+    assert [p.touches[0].depth_mm for p in series] == [0.0, 1.0, 4.0]
+    assert [p.index for p in series] == [0, 1, 2] and {p.kind for p in series} == {"press"}
+    assert len({p.key for p in series}) == 3
+
+
+@pytest.mark.parametrize("kwargs, name", [
+    (dict(n_touches=0), "n_touches"),
+    (dict(n_touches=6), "n_touches"),
+    (dict(radius_range_mm=(6.25, 51.0)), "radius_range_mm"),
+    (dict(depth_range_mm=(3.0, 2.0)), "depth_range_mm"),
+    (dict(min_gap_mm=-1.0), "min_gap_mm"),
+    (dict(seed=-1), "seed"),
+])
+def test_bad_arguments_named(kwargs, name):
+    args = dict(size_mm=L, n_touches=2, index=0, seed=0) | kwargs
+    with pytest.raises(ParameterError, match=name):
+        random_phantom(**args)
+
+
+def test_impossible_packing_reported():
+    with pytest.raises(ParameterError, match="non-overlapping"):
+        random_phantom(40.0, 5, 0, seed=0, radius_range_mm=(9.0, 10.0))

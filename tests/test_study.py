@@ -1,0 +1,181 @@
+"""Study files: the shipped studies load; bad files are rejected with the file and key named; --set."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import pytest
+
+from latticeopt.design import DESIGN_FIELDS, LatticeDesign
+from latticeopt.errors import ParameterError
+from latticeopt.mesh import MeshSettings
+from latticeopt.study import PHYSICS_KEYS, EvalSettings, load_study, parse_override
+
+STUDIES = Path(__file__).parents[1] / "studies"
+
+BASE = """
+name = "t"
+out = "runs/t"
+[design]
+thickness_mm = 3.0
+[grid]
+width_mm = [0, 4]
+[phantoms]
+seed = 1
+counts = { 1 = 2, 2 = 1 }
+[mesh]
+size_mm = 5.0
+"""
+
+
+def _write(tmp_path: Path, text: str) -> Path:
+    p = tmp_path / "s.toml"
+    p.write_text(text)
+    return p
+
+
+def test_paper_fig4_is_the_papers_grid():
+    s = load_study(STUDIES / "paper_fig4.toml")
+    assert s.kind == "grid" and s.grid_fields == ("thickness_mm", "width_mm")
+    assert {(d.thickness_mm, d.width_mm) for d in s.designs} == {
+        (t, w) for t in (1, 2, 3, 4, 5) for w in (0, 2, 3, 4, 5, 6)}
+    assert len(s.designs) == 30 and len(s.phantoms) == 300
+    assert [sum(p.n_touches == k for p in s.phantoms) for k in (1, 2, 3)] == [100, 100, 100]
+    assert s.n_tasks == 9000
+
+
+def test_quick_has_the_same_grid_and_shares_phantoms_with_paper():
+    quick, paper = load_study(STUDIES / "quick.toml"), load_study(STUDIES / "paper_fig4.toml")
+    assert quick.designs == paper.designs
+    assert quick.settings.key != paper.settings.key  # coarser mesh: results never mixed
+    first = {(p.n_touches, p.index): p for p in paper.phantoms}
+    assert all(first[(p.n_touches, p.index)] == p for p in quick.phantoms)
+
+
+def test_paper_press():
+    s = load_study(STUDIES / "paper_press.toml")
+    assert s.kind == "press" and [d.width_mm for d in s.designs] == [0, 4, 6]
+    assert {d.thickness_mm for d in s.designs} == {3.0}
+    assert {(t.radius_mm, t.x_mm, t.y_mm) for p in s.phantoms for t in p.touches} == {(8.75, 50.0, 50.0)}
+    depths = [p.touches[0].depth_mm for p in s.phantoms]
+    assert depths[0] == 0.0 and depths[-1] == 4.0 and depths == sorted(depths)
+    assert [c.reference for c in s.phantom_set.compare] == [1.85, 1.13]
+
+
+def test_tasks_are_design_major(tmp_path):
+    s = load_study(_write(tmp_path, BASE))
+    tasks = s.tasks()
+    assert [d.width_mm for d, _ in tasks] == [0, 0, 0, 4, 4, 4]
+    assert [p for _, p in tasks[:3]] == list(s.phantoms) == [p for _, p in tasks[3:]]
+
+
+@pytest.mark.parametrize("edit, key, fragment", [
+    (('name = "t"', 'name = "t"\ncolour = 1'), "colour", "name, description, kind"),  # unknown top-level key
+    (("[grid]", "[grid]\nwidht_mm = [1]"), "grid.widht_mm", "width_mm, thickness_mm"),  # typo in a design field
+    (("size_mm = 5.0", "size = 5.0"), "mesh.size", "mesher, size_mm"),
+    (("[mesh]", "[physics]\nsigma = 1\n[mesh]"), "physics.sigma", ", ".join(PHYSICS_KEYS)),
+    (("seed = 1", "seed = 1\ncount = 3"), "phantoms.count", "seed, counts"),
+])
+def test_unknown_key_named_with_valid_keys(tmp_path, edit, key, fragment):
+    path = _write(tmp_path, BASE.replace(*edit))
+    with pytest.raises(ParameterError) as info:
+        load_study(path)
+    msg = str(info.value)
+    assert msg.startswith(f"{path}: {key}:") and fragment in msg
+
+
+@pytest.mark.parametrize("edit, key", [
+    (("width_mm = [0, 4]", "width_mm = [0, 12.5]"), "grid.width_mm"),             # w >= p
+    (("thickness_mm = 3.0", "thickness_mm = 3.0\npitch_mm = 3.0"), "grid.width_mm"),  # w = 4 >= p = 3
+    (("width_mm = [0, 4]", "width_mm = []"), "grid.width_mm"),                    # empty grid
+    (("width_mm = [0, 4]", ""), "grid"),                                          # [grid] with no field
+    (("width_mm = [0, 4]", "width_mm = [4, 4.0]"), "grid.width_mm"),              # the same design twice
+    (("width_mm = [0, 4]", "width_mm = 4"), "grid.width_mm"),                     # not a list
+    (("width_mm = [0, 4]", 'width_mm = ["wide"]'), "grid.width_mm"),              # bad type
+    (("thickness_mm = 3.0", "thickness_mm = 8.0"), "design.thickness_mm"),       # no room for the substrate
+    (("size_mm = 5.0", 'size_mm = "fine"'), "mesh.size_mm"),
+    (("[mesh]", "[physics]\nsigma_S_per_m = -1\n[mesh]"), "physics.sigma_S_per_m"),
+    (("[mesh]", '[physics]\npoisson_cap = "high"\n[mesh]'), "physics.poisson_cap"),
+    (('name = "t"', 'name = "t"\njobs = "two"'), "jobs"),
+    (('name = "t"', 'name = "t"\nkind = "random"'), "kind"),
+    (('name = "t"', 'name = "t"\nmodel = "nocolon"'), "model"),
+    (("counts = { 1 = 2, 2 = 1 }", "counts = { 1 = 0 }"), "phantoms.counts"),
+    (("counts = { 1 = 2, 2 = 1 }", "counts = { 7 = 1 }"), "phantoms.counts.7"),
+    (("counts = { 1 = 2, 2 = 1 }", "counts = { 1 = 2.5 }"), "phantoms.counts.1"),
+    (("seed = 1", "seed = 1\nradius_mm = [8, 6]"), "phantoms.radius_mm"),
+    (("seed = 1", "seed = 1\ndepth_mm = [9.2, 9.5]"), "phantoms"),              # deeper than the stack
+    (("[phantoms]", "[press]\nx_mm = 50\n[phantoms]"), "press"),                # press table in a grid study
+])
+def test_invalid_study_rejected_naming_file_and_key(tmp_path, edit, key):
+    assert edit[0] in BASE
+    path = _write(tmp_path, BASE.replace(*edit, 1))
+    with pytest.raises(ParameterError) as info:
+        load_study(path)
+    assert str(info.value).startswith(f"{path}: {key}:"), str(info.value)
+
+
+def test_bad_toml_and_missing_file(tmp_path):
+    with pytest.raises(ParameterError, match="valid TOML"):
+        load_study(_write(tmp_path, "name = "))
+    with pytest.raises(ParameterError, match="readable TOML"):
+        load_study(tmp_path / "nope.toml")
+
+
+def test_press_selector_must_match_one_design(tmp_path):
+    text = (BASE.replace("[phantoms]\nseed = 1\ncounts = { 1 = 2, 2 = 1 }", "")
+            .replace('name = "t"', 'name = "t"\nkind = "press"')
+            + "[press]\ndepths_mm = [1, 2]\n[[press.compare]]\nnumerator = { width_mm = 4 }\n"
+              "denominator = { width_mm = 6 }\n")
+    with pytest.raises(ParameterError, match=r"press.compare\[0\].denominator: .*matched 0"):
+        load_study(_write(tmp_path, text))
+    ok = load_study(_write(tmp_path, text.replace("width_mm = 6 }", "width_mm = 0 }")))
+    assert [p.touches[0].depth_mm for p in ok.phantoms] == [1.0, 2.0]
+
+
+def test_set_overrides(tmp_path):
+    path = _write(tmp_path, BASE)
+    s = load_study(path, ["mesh.size_mm=3", "grid.width_mm=[0, 2, 6]", "phantoms.counts.3=1", "out=elsewhere/x",
+                          "physics.indenter=flat", "design.pitch_mm=10"])
+    assert s.settings.mesh.size_mm == 3.0 and [d.width_mm for d in s.designs] == [0, 2, 6]
+    assert {d.pitch_mm for d in s.designs} == {10.0}
+    assert [p.n_touches for p in s.phantoms] == [1, 1, 2, 3]
+    assert s.out_dir == Path("elsewhere/x") and s.settings.physics == {"indenter": "flat"}
+    with pytest.raises(ParameterError) as info:
+        load_study(path, ["grid.width_mm=[0, 20]"])
+    assert str(info.value).startswith("--set grid.width_mm:")
+    with pytest.raises(ParameterError, match="--set mesh.sise_mm: .*size_mm"):
+        load_study(path, ["mesh.sise_mm=3"])
+    with pytest.raises(ParameterError, match="--set"):
+        load_study(path, ["noequals"])
+    with pytest.raises(ParameterError, match="not a table"):
+        load_study(path, ["name.x=1"])
+
+
+def test_parse_override_values():
+    assert parse_override("a.b=3") == ("a.b", 3)
+    assert parse_override("x=[0,4]") == ("x", [0, 4])
+    assert parse_override("x = true") == ("x", True)
+    assert parse_override('x="a b"') == ("x", "a b")
+    assert parse_override("out=runs/a") == ("out", "runs/a")
+
+
+def test_settings_key_tracks_what_changes_results():
+    base = EvalSettings()
+    assert base.key == EvalSettings().key
+    assert EvalSettings(mesh=MeshSettings(size_mm=3)).key != base.key
+    assert EvalSettings(physics_items=(("sigma_S_per_m", 2.0),)).key != base.key
+    assert EvalSettings(model="m:f").key != base.key
+    assert EvalSettings(cache_dir="/tmp/x").key == base.key
+    a = EvalSettings(physics_items=(("sigma_S_per_m", 2.0), ("indenter", "flat")))
+    b = EvalSettings(physics_items=(("indenter", "flat"), ("sigma_S_per_m", 2)))
+    assert a.key == b.key and a.physics == {"indenter": "flat", "sigma_S_per_m": 2.0}
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        a.model = "x:y"
+
+
+def test_grid_may_vary_any_design_field(tmp_path):
+    text = BASE.replace("width_mm = [0, 4]", "pitch_mm = [10, 12.5]\nelectrode_width_mm = [3, 4]")
+    s = load_study(_write(tmp_path, text))
+    assert len(s.designs) == 4 and all(isinstance(d, LatticeDesign) for d in s.designs)
+    assert set(s.grid_fields) <= set(DESIGN_FIELDS)

@@ -1,0 +1,295 @@
+"""The sweep machinery: end to end, kill-and-resume, determinism, failures, dask.
+
+The model here is a TEST DOUBLE (``fake_evaluate``): a cheap deterministic function of the design and the
+phantom that exercises the runner, store and reports. It is not physics; the coupled model is tested in its
+own modules.
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+import signal
+import sqlite3
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from latticeopt.errors import ConvergenceError
+from latticeopt.report import best_design
+from latticeopt.store import ResultStore
+from latticeopt.study import load_study
+from latticeopt.sweep import run_sweep
+
+TESTS = Path(__file__).parent
+LOG_ENV = "LATTICEOPT_TEST_EVAL_LOG"
+DELAY_ENV = "LATTICEOPT_TEST_EVAL_DELAY"
+
+
+def _fake_value(design, phantom) -> float:
+    depth = sum(t.depth_mm * t.radius_mm for t in phantom.touches)
+    return 1e-3 * depth * (1 + 0.05 * design.width_mm) / design.thickness_mm + 1e-4 * phantom.index
+
+
+def fake_evaluate(design, phantom, settings) -> dict:
+    """TEST DOUBLE of latticeopt.coupled.evaluate_phantom (machinery only, not physics)."""
+    delay = float(os.environ.get(DELAY_ENV, "0"))
+    if delay:
+        time.sleep(delay)
+    v = _fake_value(design, phantom)
+    log = os.environ.get(LOG_ENV)
+    if log:
+        with open(log, "a") as fh:
+            fh.write(f"{design.content_hash()} {phantom.key}\n")
+    return {"v_rel": v, "voltages": np.linspace(1.0, 2.0, 208) * (1 + v),
+            "forces_N": [t.depth_mm * 0.1 for t in phantom.touches], "timings": {"fake": 0.0}, "newton_steps": 3}
+
+
+def fake_evaluate_failing(design, phantom, settings) -> dict:
+    """TEST DOUBLE that fails (ConvergenceError) on phantom index 1 of the w = 2 design."""
+    if design.width_mm == 2 and phantom.index == 1:
+        raise ConvergenceError("fake: Newton did not converge at step 3")
+    return fake_evaluate(design, phantom, settings)
+
+
+def fake_evaluate_buggy(design, phantom, settings) -> dict:
+    """TEST DOUBLE with a programming error on phantom index 2 (must stop the sweep)."""
+    if phantom.index == 2:
+        raise TypeError("fake bug")
+    return fake_evaluate(design, phantom, settings)
+
+
+STUDY = """
+name = "tiny"
+out = "{out}"
+jobs = 1
+[design]
+thickness_mm = 3.0
+[grid]
+width_mm = [0, 2]
+[phantoms]
+seed = 7
+counts = {{ 1 = {n1}, 2 = {n2} }}
+[mesh]
+size_mm = 5.0
+"""
+
+
+def _study(tmp_path: Path, n1=2, n2=1, name="study.toml", out="out"):
+    path = tmp_path / name
+    path.write_text(STUDY.format(out=(tmp_path / out).as_posix(), n1=n1, n2=n2))
+    return load_study(path)
+
+
+def _read_csv(path: Path, drop=("seconds",)) -> list[dict]:
+    with open(path) as fh:
+        return [{k: v for k, v in row.items() if k not in drop} for row in csv.DictReader(fh)]
+
+
+def test_end_to_end_two_designs_three_phantoms(tmp_path, monkeypatch):
+    monkeypatch.setenv(LOG_ENV, str(tmp_path / "evals.log"))
+    study = _study(tmp_path)
+    res = run_sweep(study, fake_evaluate, progress=False)
+    assert (res.computed, res.skipped, res.failed) == (6, 0, 0)
+    rows = _read_csv(res.outputs["results"])
+    assert len(rows) == 6
+    expected = [(w, i, k) for w in ("0.0", "2.0") for i, k in (("0", "1"), ("1", "1"), ("0", "2"))]
+    assert [(r["width_mm"], r["phantom_index"], r["n_touches"]) for r in rows] == expected
+    summary = _read_csv(res.outputs["summary"])
+    for s, design in zip(summary, study.designs):
+        vals = [_fake_value(design, p) for p in study.phantoms]
+        assert float(s["v_rel_mean"]) == pytest.approx(statistics.mean(vals), rel=1e-12)
+        assert float(s["v_rel_se"]) == pytest.approx(statistics.stdev(vals) / np.sqrt(3), rel=1e-12)
+        assert (s["n"], s["failed"]) == ("3", "0")
+    best = best_design(study, res.evaluations)
+    assert best["design"].width_mm == 2.0  # the double rises with w
+    assert "best design: width = 2" in res.report[1]
+    for key in ("lines_plot", "heatmap"):
+        if key in res.outputs:
+            assert res.outputs[key].read_bytes()[:4] == b"\x89PNG"
+    assert "lines_plot" in res.outputs
+    # a second run reads everything from the store
+    again = run_sweep(study, fake_evaluate, progress=False)
+    assert (again.computed, again.skipped) == (0, 6)
+    assert len((tmp_path / "evals.log").read_text().splitlines()) == 6
+    stored = again.evaluations[0]
+    assert stored.voltages.shape == (208,) and stored.extra["newton_steps"] == 3
+
+
+def test_process_pool_matches_inline_and_single_blas_thread(tmp_path):
+    study = _study(tmp_path, n1=2, n2=2)
+    inline = run_sweep(study, fake_evaluate, progress=False, out_dir=tmp_path / "a", outputs=False)
+    pooled = run_sweep(study, fake_evaluate, jobs=2, progress=False, out_dir=tmp_path / "b", outputs=False)
+    assert [e.v_rel for e in pooled.evaluations] == [e.v_rel for e in inline.evaluations]
+    pids = {e.extra["worker"]["pid"] for e in pooled.evaluations}
+    assert os.getpid() not in pids
+    threads = [n for e in pooled.evaluations for n in e.extra["worker"]["blas_threads"].values()]
+    assert threads and max(threads) == 1
+
+
+def test_determinism_two_runs_identical(tmp_path):
+    study = _study(tmp_path, n1=3, n2=2)
+    a = run_sweep(study, fake_evaluate, progress=False, out_dir=tmp_path / "a")
+    b = run_sweep(load_study(tmp_path / "study.toml"), fake_evaluate, progress=False, out_dir=tmp_path / "b")
+    assert _read_csv(a.outputs["results"]) == _read_csv(b.outputs["results"])
+    assert _read_csv(a.outputs["summary"]) == _read_csv(b.outputs["summary"])
+
+
+def test_failures_recorded_counted_not_averaged_then_retried(tmp_path):
+    study = _study(tmp_path)
+    res = run_sweep(study, fake_evaluate_failing, progress=False)
+    assert res.failed == 1 and res.computed == 6
+    failed = [e for e in res.evaluations if not e.ok]
+    assert "ConvergenceError: fake: Newton did not converge" in failed[0].error
+    summary = {r["width_mm"]: r for r in _read_csv(res.outputs["summary"])}
+    w2 = study.designs[1]
+    ok_vals = [_fake_value(w2, p) for p in study.phantoms if p.index != 1 or p.n_touches != 1]
+    assert (summary["2.0"]["n"], summary["2.0"]["failed"]) == ("2", "1")
+    assert float(summary["2.0"]["v_rel_mean"]) == pytest.approx(statistics.mean(ok_vals), rel=1e-12)
+    assert "1 failed" in res.report[0]
+    # a plain re-run keeps the stored failure; retry_failed runs exactly the failed phantom again
+    assert run_sweep(study, fake_evaluate_failing, progress=False).computed == 0
+    retried = run_sweep(study, fake_evaluate_failing, progress=False, retry_failed=True)
+    assert retried.computed == 1 and retried.failed == 1
+
+
+def test_model_bug_stops_sweep_keeping_stored_rows(tmp_path):
+    study = _study(tmp_path, n1=3, n2=0)
+    with pytest.raises(TypeError, match="fake bug"):
+        run_sweep(study, fake_evaluate_buggy, progress=False)
+    with ResultStore(study.out_dir, readonly=True) as store:
+        assert len(store) == 2  # phantoms 0 and 1 of the first design, each committed as it finished
+
+
+def _store_keys(path: Path) -> set[tuple[str, str]]:
+    with ResultStore(path, readonly=True) as store:
+        return {(e.design_key, e.phantom_key) for e in store.rows()}
+
+
+def _start_cli_and_wait_for_rows(tmp_path: Path, out: Path, n_rows: int, log: str):
+    """Start ``latticeopt sweep`` (2 workers, slow test double) in its own session; return once rows exist."""
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(TESTS), os.environ.get("PYTHONPATH", "")]),
+           DELAY_ENV: "0.25", LOG_ENV: str(tmp_path / log)}
+    cmd = [sys.executable, "-m", "latticeopt", "sweep", str(tmp_path / "study.toml"), "--evaluate",
+           "test_sweep:fake_evaluate", "--jobs", "2", "--no-progress", "--out", str(out)]
+    proc = subprocess.Popen(cmd, env=env, start_new_session=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    db = out / "results.sqlite"
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and proc.poll() is None:
+        if db.exists():
+            try:
+                n = sqlite3.connect(f"{db.as_uri()}?mode=ro", uri=True).execute(
+                    "SELECT COUNT(*) FROM evaluations").fetchone()[0]
+            except sqlite3.OperationalError:
+                n = 0
+            if n >= n_rows:
+                break
+        time.sleep(0.02)
+    assert proc.poll() is None, proc.communicate()
+    return proc, cmd, env
+
+
+def test_sigkill_mid_run_then_resume(tmp_path):
+    study_path = tmp_path / "study.toml"
+    _study(tmp_path, n1=5, n2=3)
+    out = tmp_path / "killed"
+    proc, cmd, env = _start_cli_and_wait_for_rows(tmp_path, out, 4, "run1.log")
+    os.killpg(proc.pid, signal.SIGKILL)  # the CLI and its workers, at once
+    proc.wait()
+    first = _store_keys(out)
+    assert 4 <= len(first) < 16
+    with ResultStore(out, readonly=True) as store:
+        assert store.integrity_check() == "ok"
+
+    env.update({DELAY_ENV: "0", LOG_ENV: str(tmp_path / "run2.log")})
+    done = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    recomputed = {tuple(line.split()) for line in (tmp_path / "run2.log").read_text().splitlines()}
+    assert not recomputed & first  # nothing stored was computed again
+    assert recomputed | first == _store_keys(out) and len(_store_keys(out)) == 16
+    con = sqlite3.connect(out / "results.sqlite")
+    assert con.execute("SELECT COUNT(*), COUNT(DISTINCT design_key || phantom_key || settings_key) "
+                       "FROM evaluations").fetchone() == (16, 16)
+    reference = run_sweep(load_study(study_path), fake_evaluate, progress=False, out_dir=tmp_path / "clean")
+    assert _read_csv(out / "results.csv") == _read_csv(reference.outputs["results"])
+    assert _read_csv(out / "summary.csv") == _read_csv(reference.outputs["summary"])
+
+
+def _live_processes_in_group(pgid: int, wait_s: float = 5.0) -> list[str]:
+    """Processes of a process group that are still running (zombies awaiting a reaper do not count)."""
+    deadline = time.monotonic() + wait_s
+    while True:
+        ps = subprocess.run(["ps", "-o", "stat=,cmd=", "-g", str(pgid)], capture_output=True, text=True).stdout
+        live = [line for line in ps.splitlines() if line.strip() and not line.strip().startswith("Z")]
+        if not live or time.monotonic() > deadline:
+            return live
+        time.sleep(0.1)
+
+
+def test_ctrl_c_stops_workers_and_leaves_store_consistent(tmp_path):
+    _study(tmp_path, n1=5, n2=3)
+    out = tmp_path / "interrupted"
+    proc, cmd, env = _start_cli_and_wait_for_rows(tmp_path, out, 2, "run1.log")
+    os.killpg(proc.pid, signal.SIGINT)  # what a terminal sends to the foreground group on Ctrl-C
+    _, err = proc.communicate(timeout=30)
+    assert proc.returncode == 130 and "interrupted" in err and "Traceback" not in err
+    assert _live_processes_in_group(proc.pid) == []  # no worker left behind
+    with ResultStore(out, readonly=True) as store:
+        assert store.integrity_check() == "ok" and 2 <= len(store) < 16
+    env[DELAY_ENV] = "0"
+    assert subprocess.run(cmd, env=env, capture_output=True, timeout=120).returncode == 0
+    assert len(_store_keys(out)) == 16
+
+
+def test_dask_local_cluster_equals_local_run(tmp_path):
+    distributed = pytest.importorskip("distributed")
+    study = _study(tmp_path, n1=2, n2=2)
+    local = run_sweep(study, fake_evaluate, progress=False, out_dir=tmp_path / "local")
+    # a real TCP scheduler on loopback; its worker runs in this process (threads), which is enough here
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=False, host="127.0.0.1",
+                                  protocol="tcp://", dashboard_address=None) as cluster:
+        assert cluster.scheduler_address.startswith("tcp://127.0.0.1:")
+        remote = run_sweep(study, fake_evaluate, backend="dask", scheduler=cluster.scheduler_address,
+                           progress=False, out_dir=tmp_path / "dask")
+    assert remote.computed == local.computed == 8
+    assert _read_csv(remote.outputs["results"]) == _read_csv(local.outputs["results"])
+
+
+def test_cli_rejects_bad_study_before_any_work(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text(STUDY.format(out=(tmp_path / "never").as_posix(), n1=1, n2=1).replace("[0, 2]", "[0, 12.5]"))
+    done = subprocess.run([sys.executable, "-m", "latticeopt", "sweep", str(bad)], capture_output=True, text=True)
+    assert done.returncode == 2
+    assert done.stderr.count("\n") == 1 and "grid.width_mm" in done.stderr and str(bad) in done.stderr
+    assert not (tmp_path / "never").exists()
+
+
+def test_model_return_contract():
+    from latticeopt.design import LatticeDesign
+    from latticeopt.errors import LatticeoptError
+    from latticeopt.phantoms import random_phantom
+    from latticeopt.study import EvalSettings
+    from latticeopt.sweep import result_to_evaluation
+
+    design, phantom, settings = LatticeDesign(), random_phantom(100.0, 2, 0, seed=0), EvalSettings()
+    worker = {"host": "h", "pid": 1, "blas_threads": {}}
+
+    def payload(result):
+        return {"status": "ok", "result": result, "error": None, "seconds": 1.5, "worker": worker}
+
+    e = result_to_evaluation(payload({"v_rel": np.float64(0.02), "forces_N": np.array([1.0, 2.0]),
+                                      "voltages": np.ones(208), "timings": {"mechanics": 1.0},
+                                      "newton_steps": np.int64(4), "mesh": object()}), design, phantom, settings)
+    assert e.ok and e.v_rel == 0.02 and e.forces_N == (1.0, 2.0) and e.seconds == 1.5
+    assert e.extra["newton_steps"] == 4 and e.extra["mesh"].startswith("<not stored")
+    assert e.key == (design.content_hash(), phantom.key, settings.key)
+    nan = result_to_evaluation(payload({"v_rel": float("nan")}), design, phantom, settings)
+    assert not nan.ok and "non-finite" in nan.error
+    with pytest.raises(LatticeoptError, match="without 'v_rel'"):
+        result_to_evaluation(payload({"V_rel": 0.1}), design, phantom, settings)
