@@ -66,11 +66,16 @@ def _poisson(name: str, value: object) -> float:
 #: The keys a study's ``[physics]`` table accepts, each with its checker ``(name, value) -> clean value``.
 #: The table is passed to the model as a dict (:attr:`EvalSettings.physics`); the model applies its own
 #: defaults for keys a study leaves out. This is the one place to declare a new model setting.
+#: They are the fields of :class:`latticeopt.coupled.PhysicsSettings` (a test keeps the two in step).
 PHYSICS_KEYS: dict[str, Callable[[str, object], object]] = {
     "indenter": _string,
+    "in_plane": _string,
+    "silicone_shear_kPa": _positive,
+    "hydrogel_shear_kPa": _positive,
+    "poisson_ratio": _poisson,
     "sigma_S_per_m": _positive,
     "contact_impedance_ohm_m2": _non_negative,
-    "poisson_cap": _poisson,
+    "current_A": _positive,
 }
 
 

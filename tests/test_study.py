@@ -96,7 +96,7 @@ def test_unknown_key_named_with_valid_keys(tmp_path, edit, key, fragment):
     (("thickness_mm = 3.0", "thickness_mm = 8.0"), "design.thickness_mm"),       # no room for the substrate
     (("size_mm = 5.0", 'size_mm = "fine"'), "mesh.size_mm"),
     (("[mesh]", "[physics]\nsigma_S_per_m = -1\n[mesh]"), "physics.sigma_S_per_m"),
-    (("[mesh]", '[physics]\npoisson_cap = "high"\n[mesh]'), "physics.poisson_cap"),
+    (("[mesh]", '[physics]\npoisson_ratio = "high"\n[mesh]'), "physics.poisson_ratio"),
     (('name = "t"', 'name = "t"\njobs = "two"'), "jobs"),
     (('name = "t"', 'name = "t"\nkind = "random"'), "kind"),
     (('name = "t"', 'name = "t"\nmodel = "nocolon"'), "model"),

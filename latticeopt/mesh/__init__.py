@@ -18,6 +18,7 @@ import json
 import logging
 import os
 import time
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -30,8 +31,10 @@ __all__ = ["MESHERS", "MeshSettings", "TetMesh", "electrode_name", "mesh_design"
 log = logging.getLogger(__name__)
 
 MESHERS = ("grid", "tetwild")
+#: Grid cell-count rules (:func:`latticeopt.mesh.grid.grid_coordinates`).
+CELL_COUNTS = ("size", "fixed")
 #: Bump when a mesher's output changes for the same inputs, so stale cache entries are not reused.
-MESHER_REVISION = {"grid": 1, "tetwild": 1}
+MESHER_REVISION = {"grid": 2, "tetwild": 1}
 
 
 @dataclass(frozen=True)
@@ -51,6 +54,11 @@ class MeshSettings:
     epsilon_rel
         Tetwild: envelope size relative to the bounding-box diagonal (fTetWild's ``-e``); its surfaces lie
         within this distance of the input.
+    cell_counts
+        Grid: ``"size"`` (default: ``ceil(length / size_mm)`` cells per interval, so counts jump as ``w`` and
+        ``t`` move) or ``"fixed"`` (counts independent of ``w`` and ``t``, for smooth objectives in an optimizer;
+        exactly ``channel_cells`` across channels and ``layer_cells`` through the layer). Left out of
+        :meth:`as_dict` at its default, so existing settings keys and mesh cache keys do not change.
     """
 
     mesher: str = "grid"
@@ -58,6 +66,7 @@ class MeshSettings:
     channel_cells: int = 2
     layer_cells: int = 2
     epsilon_rel: float = 1e-3
+    cell_counts: str = "size"
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "mesher", v.choice("mesher", self.mesher, MESHERS))
@@ -65,9 +74,13 @@ class MeshSettings:
         object.__setattr__(self, "channel_cells", v.integer("channel_cells", self.channel_cells, lo=1, hi=16))
         object.__setattr__(self, "layer_cells", v.integer("layer_cells", self.layer_cells, lo=1, hi=32))
         object.__setattr__(self, "epsilon_rel", v.real("epsilon_rel", self.epsilon_rel, lo=1e-5, hi=1e-2))
+        object.__setattr__(self, "cell_counts", v.choice("cell_counts", self.cell_counts, CELL_COUNTS))
 
     def as_dict(self) -> dict:
-        return dataclasses.asdict(self)
+        out = dataclasses.asdict(self)
+        if out["cell_counts"] == "size":  # the default is implicit: keys computed before the option existed hold
+            del out["cell_counts"]
+        return out
 
 
 def default_cache_dir() -> Path:
@@ -83,6 +96,7 @@ def mesh_key(design: LatticeDesign, settings: MeshSettings) -> str:
     else:
         relevant.pop("channel_cells")
         relevant.pop("layer_cells")
+        relevant.pop("cell_counts", None)
     payload = {"design": design.as_dict(), "settings": relevant, "format": FORMAT_VERSION,
                "revision": MESHER_REVISION[settings.mesher]}
     return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()
@@ -92,7 +106,7 @@ def _build(design: LatticeDesign, settings: MeshSettings) -> TetMesh:
     if settings.mesher == "grid":
         from .grid import grid_mesh
 
-        return grid_mesh(design, settings.size_mm, settings.channel_cells, settings.layer_cells)
+        return grid_mesh(design, settings.size_mm, settings.channel_cells, settings.layer_cells, settings.cell_counts)
     from .tetwild import tetwild_mesh
 
     return tetwild_mesh(design, settings.size_mm, settings.epsilon_rel)
@@ -126,7 +140,8 @@ def mesh_design(design: LatticeDesign, settings: MeshSettings | None = None,
             try:
                 mesh = TetMesh.load(path)
                 return dataclasses.replace(mesh, info={**mesh.info, "cached": True})
-            except (OSError, ValueError, KeyError) as exc:  # corrupt or old entry: rebuild it
+            # corrupt, truncated (BadZipFile, EOFError) or old entry: rebuild it
+            except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
                 log.warning("ignoring unreadable mesh cache entry %s (%s)", path, exc)
     t0 = time.perf_counter()
     mesh = _build(design, settings)

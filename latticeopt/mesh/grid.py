@@ -20,7 +20,8 @@ from .tetmesh import TetMesh, tet_volumes
 
 def _axis_breakpoints(design: LatticeDesign, tangent_axis: int) -> np.ndarray:
     L = design.size_mm
-    pts = [0.0, L]
+    # The centre line makes the cell count even, so the mirrored split of _kuhn_tets is symmetric.
+    pts = [0.0, L / 2, L]
     pts += design.channel_intervals_mm().ravel().tolist()
     for cx, cy, _cz, _nx, _ny, axis, width, _h in design.electrodes():
         if int(axis) == tangent_axis:
@@ -29,49 +30,116 @@ def _axis_breakpoints(design: LatticeDesign, tangent_axis: int) -> np.ndarray:
     return np.unique(np.round(np.clip(pts, 0.0, L), 9))
 
 
-def _subdivide(breaks: np.ndarray, size_mm: float, min_cells) -> np.ndarray:
-    """Coordinates after splitting each interval ``[b_i, b_i+1]`` into equal cells of length <= size."""
+def _subdivide(breaks: np.ndarray, size_mm: float, min_cells, reference: np.ndarray | None = None,
+               vanishing_cells: int | None = None) -> np.ndarray:
+    """Coordinates after splitting each interval ``[b_i, b_i+1]`` into equal cells.
+
+    The count is ``max(ceil(length / size), min_cells)``, where the length is the interval's own, or, given
+    ``reference`` (one coordinate per breakpoint), ``|reference[i+1] - reference[i]|``; an interval whose
+    reference length is zero gets ``vanishing_cells`` cells when that is given.
+    """
+    ref = breaks if reference is None else reference
     out = [breaks[:1]]
-    for a, b in zip(breaks[:-1], breaks[1:]):
-        n = max(int(np.ceil((b - a) / size_mm - 1e-9)), int(min_cells(a, b)), 1)
+    for i, (a, b) in enumerate(zip(breaks[:-1], breaks[1:])):
+        length = abs(ref[i + 1] - ref[i])
+        if vanishing_cells is not None and length < 1e-9:
+            n = vanishing_cells
+        else:
+            n = max(int(np.ceil(length / size_mm - 1e-9)), int(min_cells(a, b)), 1)
         out.append(np.linspace(a, b, n + 1)[1:])
     return np.concatenate(out)
 
 
-def grid_coordinates(design: LatticeDesign, size_mm: float, channel_cells: int,
-                     layer_cells: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The x, y and z grid lines of the structured mesh (mm)."""
+def _reference_breakpoints(design: LatticeDesign, breaks: np.ndarray, tangent_axis: int) -> np.ndarray:
+    """Each breakpoint's position in the reference layout of ``cell_counts="fixed"``.
+
+    Sensor sides and electrode edges stay; the edges of the channel on line ``c`` move to
+    ``c -/+ electrode_width / 2``, i.e. every channel takes the electrode width. Reference lengths, hence cell
+    counts, then do not depend on ``w``; and where a channel edge crosses an electrode edge (at ``w`` = electrode
+    width when channels are centred on the electrodes, as in the default layout) the piece between them has zero
+    reference length on both sides of the crossing, so the counts agree across it.
+    """
+    L = design.size_mm
+    fixed = [0.0, L / 2, L] + [(cx if tangent_axis == 0 else cy) + s * width / 2
+                        for cx, cy, _cz, _nx, _ny, axis, width, _h in design.electrodes() if int(axis) == tangent_axis
+                        for s in (-1, 1)]
+    fixed = np.clip(fixed, 0.0, L)
+    lines, half = design.line_positions_mm(), design.electrode_width_mm / 2
+    edges = np.clip(np.concatenate([lines - design.width_mm / 2, lines + design.width_mm / 2]), 0.0, L)
+    moved = np.clip(np.concatenate([lines - half, lines + half]), 0.0, L)
+    out = breaks.copy()
+    for i, b in enumerate(breaks):
+        if design.has_lattice and not np.any(np.abs(fixed - b) < 1e-9):
+            hit = np.abs(edges - b) < 1e-9
+            if hit.any():
+                out[i] = moved[np.argmax(hit)]
+    return out
+
+
+def grid_coordinates(design: LatticeDesign, size_mm: float, channel_cells: int, layer_cells: int,
+                     cell_counts: str = "size") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The x, y and z grid lines of the structured mesh (mm).
+
+    ``cell_counts="size"`` (default) splits every interval into ``ceil(length / size_mm)`` cells (at least
+    ``channel_cells`` across a channel and ``layer_cells`` through the conductive layer), so counts jump as ``w``
+    or ``t`` move. ``"fixed"`` takes the lengths from a reference layout instead — every channel as wide as an
+    electrode (:func:`_reference_breakpoints`), the conductive layer shrunk onto its top face — so the counts,
+    hence the node count, stay constant while ``w`` and ``t`` move and the nodes move smoothly with them (what a
+    local optimizer needs). In the default layout the one exception is ``w`` exactly equal to the electrode width,
+    where channel and electrode edges merge; the meshes on either side converge to that one. The conductive
+    layer gets exactly ``layer_cells`` cells; a channel ``max(channel_cells, ceil(electrode width / size))``.
+    """
     iv = design.channel_intervals_mm()
 
     def in_channel(a: float, b: float) -> int:
         mid = 0.5 * (a + b)
         return channel_cells if np.any((iv[:, 0] <= mid) & (mid <= iv[:, 1])) else 1
 
-    x = _subdivide(_axis_breakpoints(design, 0), size_mm, in_channel)
-    y = _subdivide(_axis_breakpoints(design, 1), size_mm, in_channel)
+    xb, yb = _axis_breakpoints(design, 0), _axis_breakpoints(design, 1)
     z0, z1 = design.layer_z_mm
     zb = np.unique(np.round([0.0, z0, z1, design.total_thickness_mm], 9))
-    z = _subdivide(zb, size_mm, lambda a, b: layer_cells if (a >= z0 - 1e-9 and b <= z1 + 1e-9) else 1)
+    if cell_counts == "fixed":
+        x = _subdivide(xb, size_mm, in_channel, _reference_breakpoints(design, xb, 0), vanishing_cells=1)
+        y = _subdivide(yb, size_mm, in_channel, _reference_breakpoints(design, yb, 1), vanishing_cells=1)
+        zref = np.where(np.abs(zb - z0) < 1e-9, z1, zb) if z0 > 0 else None
+    else:
+        x, y = _subdivide(xb, size_mm, in_channel), _subdivide(yb, size_mm, in_channel)
+        zref = None
+    z = _subdivide(zb, size_mm, lambda a, b: layer_cells if (a >= z0 - 1e-9 and b <= z1 + 1e-9) else 1, zref)
     return x, y, z
 
 
-def _kuhn_tets(nx: int, ny: int, nz: int) -> np.ndarray:
-    """Tets (node indices into an ``nx * ny * nz`` lattice, x fastest) of the six-tet split of every cell."""
+def _kuhn_tets(x: np.ndarray, y: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """Tets (node indices into the ``len(x) * len(y) * len(z)`` lattice, x fastest) of every cell's six-tet split.
+
+    Each cell is split along a main diagonal into the six tets of the monotone corner paths (Kuhn). Cells
+    beyond the middle of the x (y) range use the split mirrored in x (y): mirrored neighbours share their
+    face diagonals, so the mesh stays conforming, and with an even cell count per axis the whole mesh is
+    invariant under the eight symmetries of the square (mirrors and quarter turns). Symmetric physics then
+    gives exactly symmetric discrete results, which the tests and the data augmentation rely on.
+    """
+    nx, ny, nz = len(x), len(y), len(z)
     i, j, k = np.meshgrid(np.arange(nx - 1), np.arange(ny - 1), np.arange(nz - 1), indexing="ij")
-    base = (i + nx * (j + ny * k)).ravel()
-    step = np.array([1, nx, nx * ny])
+    flip_x = (0.5 * (x[:-1] + x[1:]) > 0.5 * (x[0] + x[-1]))[i].ravel()
+    flip_y = (0.5 * (y[:-1] + y[1:]) > 0.5 * (y[0] + y[-1]))[j].ravel()
+    i, j, k = i.ravel(), j.ravel(), k.ravel()
     tets = []
     for perm in permutations(range(3)):
-        v0 = base
-        v1 = v0 + step[perm[0]]
-        v2 = v1 + step[perm[1]]
-        v3 = v2 + step[perm[2]]
-        tets.append(np.stack([v0, v1, v2, v3], axis=1))
+        corner = np.zeros(3, dtype=int)
+        verts = []
+        for step in (None, *perm):
+            if step is not None:
+                corner = corner.copy()
+                corner[step] = 1
+            bx = np.where(flip_x, 1 - corner[0], corner[0])
+            by = np.where(flip_y, 1 - corner[1], corner[1])
+            verts.append((i + bx) + nx * ((j + by) + ny * (k + corner[2])))
+        tets.append(np.stack(verts, axis=1))
     return np.concatenate(tets)
 
 
 def grid_mesh(design: LatticeDesign, size_mm: float = 2.0, channel_cells: int = 2,
-              layer_cells: int = 2) -> TetMesh:
+              layer_cells: int = 2, cell_counts: str = "size") -> TetMesh:
     """Structured conforming mesh of ``design``.
 
     Parameters
@@ -85,18 +153,20 @@ def grid_mesh(design: LatticeDesign, size_mm: float = 2.0, channel_cells: int = 
         edge splits).
     layer_cells
         Minimum number of cells through the conductive layer.
+    cell_counts
+        ``"size"`` or ``"fixed"`` (counts independent of ``w`` and ``t``; see :func:`grid_coordinates`).
 
     Returns
     -------
     TetMesh
         With region labels from the design's geometry and all named facet sets.
     """
-    x, y, z = grid_coordinates(design, size_mm, channel_cells, layer_cells)
+    x, y, z = grid_coordinates(design, size_mm, channel_cells, layer_cells, cell_counts)
     X, Y, Z = np.meshgrid(x, y, z, indexing="ij")
     # x fastest, matching _kuhn_tets' numbering.
     nodes = np.stack([X.transpose(2, 1, 0).ravel(), Y.transpose(2, 1, 0).ravel(),
                       Z.transpose(2, 1, 0).ravel()], axis=1)
-    tets = _kuhn_tets(len(x), len(y), len(z))
+    tets = _kuhn_tets(x, y, z)
     neg = tet_volumes(nodes, tets) < 0
     tets[neg] = tets[neg][:, [0, 2, 1, 3]]
     region = design.region_at(nodes[tets].mean(axis=1))

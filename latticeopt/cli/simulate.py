@@ -1,0 +1,60 @@
+"""``latticeopt simulate``: one coupled simulation (indentation, then the 208 voltages and V_rel)."""
+
+from __future__ import annotations
+
+import time
+
+from ._common import add_design_args, add_mesh_args, design_from_args, emit_json, mesh_settings_from_args
+
+
+def register(sub) -> None:
+    from ..coupled import PhysicsSettings
+    from ..mechanics.indenters import IN_PLANE, INDENTERS
+
+    d = PhysicsSettings()
+    p = sub.add_parser("simulate", help="coupled indentation + electrics of one phantom: V_rel",
+                       description="Indent the design, solve the 16-electrode current flow on the deformed "
+                                   "hydrogel and report V_rel against the untouched reference (paper eq. 5).")
+    add_design_args(p)
+    add_mesh_args(p)
+    g = p.add_argument_group("phantom and physics")
+    g.add_argument("--touch", action="append", required=True, metavar="X,Y,R,D",
+                   help="indenter centre x, y, radius and depth in mm (repeat for up to three touches)")
+    g.add_argument("--indenter", choices=INDENTERS, default=d.indenter, help="indenter tip (default flat punch)")
+    g.add_argument("--in-plane", choices=IN_PLANE, default=d.in_plane, help="flat punch in-plane condition")
+    g.add_argument("--sigma", type=float, default=d.sigma_S_per_m, help="hydrogel conductivity (S/m)")
+    g.add_argument("--contact-impedance", type=float, default=d.contact_impedance_ohm_m2,
+                   help="electrode contact impedance (ohm m^2)")
+    p.add_argument("--json", action="store_true", help="print one JSON object instead of text")
+    p.set_defaults(func=run_simulate)
+
+
+def run_simulate(args) -> int:
+    from ..coupled import CoupledModel, PhysicsSettings
+    from ..touches import Touch, validate_touches
+
+    touches = [Touch.parse(text, name=f"--touch #{i + 1}") for i, text in enumerate(args.touch)]
+    design = design_from_args(args)
+    touches = validate_touches(design, touches)  # before meshing or solving
+    physics = PhysicsSettings(indenter=args.indenter, in_plane=args.in_plane, sigma_S_per_m=args.sigma,
+                              contact_impedance_ohm_m2=args.contact_impedance)
+    settings = mesh_settings_from_args(args)
+    t0 = time.perf_counter()
+    model = CoupledModel(design, settings, physics, cache_dir=False if args.no_cache else args.cache_dir)
+    res = model.simulate(touches)
+    out = res.summary()
+    out.update({"design": design.as_dict(), "physics": physics.as_dict(), "nodes": model.mesh.n_nodes,
+                "reference_voltages": res.reference_voltages.tolist(), "setup_seconds": model.setup_seconds,
+                "seconds": time.perf_counter() - t0})
+    if args.json:
+        emit_json(out)
+        return 0
+    print(f"{design.describe()}; mesh {model.mesh.n_nodes} nodes")
+    for i, (t, f) in enumerate(zip(touches, res.forces_N)):
+        print(f"touch {i + 1}: ({t.x_mm:g}, {t.y_mm:g}) mm, r = {t.radius_mm:g} mm, d = {t.depth_mm:g} mm -> "
+              f"force {f:.4g} N")
+    print(f"V_rel = {res.v_rel:.5f} over {len(res.voltages)} measurements "
+          f"(max hydrogel stretch {res.max_hydrogel_stretch:.3f})")
+    print(f"{out['seconds']:.2f} s (set-up {model.setup_seconds:.2f} s, mechanics {res.timings['mechanics']:.2f} s, "
+          f"electrics {res.timings['electrics']:.2f} s)")
+    return 0

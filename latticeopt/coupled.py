@@ -1,0 +1,211 @@
+"""Coupled simulation: indentation -> deformed hydrogel -> 208 voltages -> ``V_rel``.
+
+>>> from latticeopt import LatticeDesign
+>>> from latticeopt.coupled import CoupledModel
+>>> from latticeopt.touches import Touch
+>>> model = CoupledModel(LatticeDesign(width_mm=4, thickness_mm=3))           # doctest: +SKIP
+>>> model.simulate([Touch(50, 50, 8.75, 4.0)]).v_rel                          # doctest: +SKIP
+
+Conductivity change under load comes from the deformed geometry alone (DESIGN.md §3): the hydrogel keeps its
+conductivity per unit volume and the electrics are solved on the deformed hydrogel mesh, electrodes moving
+with it.
+
+``V_rel = mean_i |V_i - V_i_ref| / |V_i_ref|`` over the measurement rows (paper eq. 5). With the adjacent
+protocol the 208 rows are the 104 independent ones twice (reciprocity), so the mean over 208 equals the mean
+over the 104 the paper quotes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import _validate as v
+from .design import LatticeDesign
+from .electrics.forward import (
+    DEFAULT_CONTACT_IMPEDANCE_OHM_M2,
+    DEFAULT_CURRENT_A,
+    DEFAULT_SIGMA_S_PER_M,
+    ForwardModel,
+)
+from .errors import ParameterError
+from .mechanics.indent import IndentationSolver, IndentSettings
+from .mechanics.indenters import IN_PLANE, INDENTERS
+from .mechanics.materials import Materials, NeoHookean
+from .mesh import MeshSettings, mesh_design
+from .touches import Touch
+
+log = logging.getLogger(__name__)
+
+_SILICONE, _GEL = Materials().silicone, Materials().hydrogel
+
+
+@dataclass(frozen=True)
+class PhysicsSettings:
+    """Model parameters of a coupled simulation (the ``[physics]`` table of a study).
+
+    Parameters
+    ----------
+    indenter
+        ``"flat"`` punch (default) or ``"sphere"``.
+    in_plane
+        Flat punch contact: ``"bonded"`` (no slip) or ``"frictionless"``.
+    silicone_shear_kPa, hydrogel_shear_kPa
+        Initial shear moduli (kPa); sources in :mod:`latticeopt.mechanics.materials`.
+    poisson_ratio
+        Small-strain Poisson ratio of both materials.
+    sigma_S_per_m
+        Hydrogel conductivity (S/m); ``V_rel`` is independent of its scale except through ``z_c * sigma``.
+    contact_impedance_ohm_m2
+        Electrode contact impedance ``z_c`` (ohm m^2).
+    current_A
+        Drive current (A); ``V_rel`` does not depend on it (linear problem).
+    """
+
+    indenter: str = "flat"
+    in_plane: str = "bonded"
+    silicone_shear_kPa: float = _SILICONE.shear_modulus_kPa
+    hydrogel_shear_kPa: float = _GEL.shear_modulus_kPa
+    poisson_ratio: float = _SILICONE.poisson_ratio
+    sigma_S_per_m: float = DEFAULT_SIGMA_S_PER_M
+    contact_impedance_ohm_m2: float = DEFAULT_CONTACT_IMPEDANCE_OHM_M2
+    current_A: float = DEFAULT_CURRENT_A
+
+    def __post_init__(self) -> None:
+        set_ = object.__setattr__
+        set_(self, "indenter", v.choice("indenter", self.indenter, INDENTERS))
+        set_(self, "in_plane", v.choice("in_plane", self.in_plane, IN_PLANE))
+        for name in ("silicone_shear_kPa", "hydrogel_shear_kPa", "sigma_S_per_m", "current_A"):
+            set_(self, name, v.real(name, getattr(self, name), lo=0, lo_open=True))
+        set_(self, "contact_impedance_ohm_m2",
+             v.real("contact_impedance_ohm_m2", self.contact_impedance_ohm_m2, lo=0))
+        set_(self, "poisson_ratio", v.real("poisson_ratio", self.poisson_ratio, lo=-1, hi=0.5, lo_open=True,
+                                           hi_open=True))
+
+    @classmethod
+    def from_dict(cls, values: dict | None) -> PhysicsSettings:
+        values = dict(values or {})
+        valid = [f.name for f in dataclasses.fields(cls)]
+        unknown = sorted(set(values) - set(valid))
+        if unknown:
+            raise ParameterError("physics", "keys among " + ", ".join(valid), unknown[0])
+        return cls(**values)
+
+    def indent_settings(self) -> IndentSettings:
+        materials = Materials(silicone=NeoHookean(self.silicone_shear_kPa, self.poisson_ratio),
+                              hydrogel=NeoHookean(self.hydrogel_shear_kPa, self.poisson_ratio))
+        return IndentSettings(materials=materials, indenter=self.indenter, in_plane=self.in_plane)
+
+    def as_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+def relative_change(voltages: np.ndarray, reference: np.ndarray) -> float:
+    """``V_rel`` of paper eq. 5: mean over rows of ``|V - V_ref| / |V_ref|``."""
+    voltages, reference = np.asarray(voltages, float), np.asarray(reference, float)
+    return float(np.mean(np.abs(voltages - reference) / np.abs(reference)))
+
+
+@dataclass(frozen=True, eq=False)
+class SimulationResult:
+    """One coupled simulation (mm, N, V, s).
+
+    Attributes
+    ----------
+    v_rel
+        Mean relative voltage change (paper eq. 5).
+    voltages, reference_voltages
+        Measurements with and without the touches, shape ``(n_rows,)`` (208 for the default protocol, pyEIT
+        "std" order).
+    forces_N
+        Indenter forces, one per touch.
+    max_hydrogel_stretch
+        Largest principal stretch in the hydrogel.
+    newton_steps
+        Linear solves of the mechanics.
+    timings
+        Seconds: ``mechanics``, ``electrics``, ``total``.
+    """
+
+    v_rel: float
+    voltages: np.ndarray
+    reference_voltages: np.ndarray
+    forces_N: np.ndarray
+    max_hydrogel_stretch: float
+    newton_steps: int
+    timings: dict
+    indentation: object = dataclasses.field(repr=False, default=None)
+
+    def summary(self) -> dict:
+        return {"v_rel": self.v_rel, "voltages": self.voltages.tolist(), "forces_N": self.forces_N.tolist(),
+                "max_hydrogel_stretch": self.max_hydrogel_stretch, "newton_steps": self.newton_steps,
+                "seconds": self.timings["total"], "timings": dict(self.timings)}
+
+
+class CoupledModel:
+    """Everything reused across the phantoms of one design: mesh, mechanics solver, reference electrics.
+
+    Parameters
+    ----------
+    design
+        The sensor design.
+    mesh_settings
+        Mesher settings (default :class:`MeshSettings()`).
+    physics
+        :class:`PhysicsSettings` (default values if None).
+    cache_dir
+        Mesh cache folder (see :func:`latticeopt.mesh.mesh_design`).
+    """
+
+    def __init__(self, design: LatticeDesign, mesh_settings: MeshSettings | None = None,
+                 physics: PhysicsSettings | None = None, cache_dir=None):
+        t0 = time.perf_counter()
+        self.design = design
+        self.physics = physics or PhysicsSettings()
+        self.mesh = mesh_design(design, mesh_settings or MeshSettings(), cache_dir=cache_dir)
+        self.mechanics = IndentationSolver(self.mesh, self.physics.indent_settings())
+        p = self.physics
+        self.reference = ForwardModel(self.mesh, sigma_S_per_m=p.sigma_S_per_m,
+                                      contact_impedance_ohm_m2=p.contact_impedance_ohm_m2, current_A=p.current_A)
+        self.reference_voltages = self.reference.voltages
+        self.setup_seconds = time.perf_counter() - t0
+
+    def simulate(self, touches) -> SimulationResult:
+        """Indent with ``touches`` and measure (see the module docstring)."""
+        t0 = time.perf_counter()
+        ind = self.mechanics.solve(touches)
+        t1 = time.perf_counter()
+        deformed = self.reference.with_nodes(ind.deformed_mesh.nodes_mm)
+        volts = deformed.voltages
+        t2 = time.perf_counter()
+        return SimulationResult(
+            v_rel=relative_change(volts, self.reference_voltages), voltages=volts,
+            reference_voltages=self.reference_voltages, forces_N=np.asarray(ind.forces_N),
+            max_hydrogel_stretch=float(ind.max_hydrogel_stretch), newton_steps=int(ind.newton_steps),
+            timings={"mechanics": t1 - t0, "electrics": t2 - t1, "total": t2 - t0}, indentation=ind)
+
+
+def simulate(design: LatticeDesign, touches, mesh_settings: MeshSettings | None = None,
+             physics: PhysicsSettings | None = None, cache_dir=None) -> SimulationResult:
+    """One-shot coupled simulation (builds a :class:`CoupledModel`; reuse one for many phantoms)."""
+    return CoupledModel(design, mesh_settings, physics, cache_dir).simulate(touches)
+
+
+def evaluate_phantom(design: LatticeDesign, phantom, settings) -> dict:
+    """The sweep's model function: one phantom of one design (``settings`` is a study's ``EvalSettings``).
+
+    Returns the keys the result store records: ``v_rel``, ``voltages``, ``forces_N``, ``timings``,
+    ``max_hydrogel_stretch``, ``newton_steps``.
+    """
+    t0 = time.perf_counter()
+    model = CoupledModel(design, settings.mesh, PhysicsSettings.from_dict(settings.physics), settings.cache_dir)
+    touches = [t if isinstance(t, Touch) else Touch(*t) for t in phantom.touches]
+    res = model.simulate(touches)
+    timings = {**res.timings, "setup": model.setup_seconds, "total": time.perf_counter() - t0}
+    return {"v_rel": res.v_rel, "voltages": res.voltages, "forces_N": res.forces_N.tolist(),
+            "timings": timings, "max_hydrogel_stretch": res.max_hydrogel_stretch,
+            "newton_steps": res.newton_steps}
