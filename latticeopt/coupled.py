@@ -195,17 +195,30 @@ def simulate(design: LatticeDesign, touches, mesh_settings: MeshSettings | None 
     return CoupledModel(design, mesh_settings, physics, cache_dir).simulate(touches)
 
 
+def _result_dict(res: SimulationResult, setup_seconds: float) -> dict:
+    return {"v_rel": res.v_rel, "voltages": res.voltages, "forces_N": res.forces_N.tolist(),
+            "timings": {**res.timings, "setup": setup_seconds}, "max_hydrogel_stretch": res.max_hydrogel_stretch,
+            "newton_steps": res.newton_steps}
+
+
+def _touches(phantom) -> list[Touch]:
+    return [t if isinstance(t, Touch) else Touch(*t) for t in phantom.touches]
+
+
+def prepare_design(design: LatticeDesign, settings):
+    """Build a design's :class:`CoupledModel` once; returns ``run(phantom) -> dict`` (the sweep's chunk hook)."""
+    model = CoupledModel(design, settings.mesh, PhysicsSettings.from_dict(settings.physics), settings.cache_dir)
+    return lambda phantom: _result_dict(model.simulate(_touches(phantom)), model.setup_seconds)
+
+
 def evaluate_phantom(design: LatticeDesign, phantom, settings) -> dict:
     """The sweep's model function: one phantom of one design (``settings`` is a study's ``EvalSettings``).
 
     Returns the keys the result store records: ``v_rel``, ``voltages``, ``forces_N``, ``timings``,
-    ``max_hydrogel_stretch``, ``newton_steps``.
+    ``max_hydrogel_stretch``, ``newton_steps``. The sweep runner calls :func:`prepare_design` (exposed as
+    ``evaluate_phantom.prepare``) instead, to build the per-design model once for several phantoms.
     """
-    t0 = time.perf_counter()
-    model = CoupledModel(design, settings.mesh, PhysicsSettings.from_dict(settings.physics), settings.cache_dir)
-    touches = [t if isinstance(t, Touch) else Touch(*t) for t in phantom.touches]
-    res = model.simulate(touches)
-    timings = {**res.timings, "setup": model.setup_seconds, "total": time.perf_counter() - t0}
-    return {"v_rel": res.v_rel, "voltages": res.voltages, "forces_N": res.forces_N.tolist(),
-            "timings": timings, "max_hydrogel_stretch": res.max_hydrogel_stretch,
-            "newton_steps": res.newton_steps}
+    return prepare_design(design, settings)(phantom)
+
+
+evaluate_phantom.prepare = prepare_design

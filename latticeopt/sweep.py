@@ -59,6 +59,19 @@ log = logging.getLogger(__name__)
 FAILURE_TYPES: tuple[type[BaseException], ...] = (LatticeoptError, ArithmeticError, ValueError, RuntimeError,
                                                   MemoryError)
 _INFLIGHT_PER_WORKER = 2
+#: Phantoms per task for models with a ``prepare`` hook (see :func:`_evaluate_chunk`).
+CHUNK_PHANTOMS = 4
+
+
+def _chunks(todo, tasks, size: int) -> list[list[int]]:
+    """Split task indices into runs of at most ``size`` consecutive tasks of one design (tasks are design-major)."""
+    out: list[list[int]] = []
+    for i in todo:
+        if out and len(out[-1]) < size and tasks[out[-1][0]][0] == tasks[i][0]:
+            out[-1].append(i)
+        else:
+            out.append([i])
+    return out
 
 
 def _failure_types() -> tuple[type[BaseException], ...]:
@@ -83,18 +96,40 @@ def _model_name(fn: Callable) -> str:
     return f"{fn.__module__}:{fn.__qualname__}"
 
 
-def _evaluate_one(evaluate: Callable, design, phantom, settings: EvalSettings) -> dict:
-    """Worker side: run the model on one phantom; failures come back as data, bugs as exceptions."""
-    t0 = time.perf_counter()
-    try:
-        result = evaluate(design, phantom, settings)
-        status, error = "ok", None
-    except _failure_types() as exc:
-        result, status = {}, "failed"
-        error = f"{type(exc).__name__}: {exc}\n{traceback.format_exc()}"
+def _evaluate_chunk(evaluate: Callable, design, phantoms, settings: EvalSettings) -> list[dict]:
+    """Worker side: run the model on phantoms of one design; failures come back as data, bugs as exceptions.
+
+    A model may expose ``evaluate.prepare(design, settings) -> callable(phantom) -> dict`` to build its
+    per-design state (mesh, factorizations, reference) once per chunk instead of once per phantom; plain
+    functions are called per phantom. If ``prepare`` itself fails, every phantom of the chunk is recorded as
+    failed with that error.
+    """
     worker = {"host": socket.gethostname(), "pid": os.getpid(), "blas_threads": blas_threads()}
-    return {"status": status, "result": result, "error": error, "seconds": time.perf_counter() - t0,
-            "worker": worker}
+    t0 = time.perf_counter()
+    prepare = getattr(evaluate, "prepare", None)
+    try:
+        run = prepare(design, settings) if prepare is not None else (lambda ph: evaluate(design, ph, settings))
+        setup_error = None
+    except _failure_types() as exc:
+        setup_error = f"{type(exc).__name__}: {exc}\n{traceback.format_exc()}"
+    setup = time.perf_counter() - t0
+    payloads = []
+    for k, phantom in enumerate(phantoms):
+        t1 = time.perf_counter()
+        if setup_error is not None:
+            result, status, error = {}, "failed", setup_error
+        else:
+            try:
+                result = run(phantom)
+                status, error = "ok", None
+            except _failure_types() as exc:
+                result, status = {}, "failed"
+                error = f"{type(exc).__name__}: {exc}\n{traceback.format_exc()}"
+        # the chunk's set-up is charged to its first phantom, so summed seconds stay the real cost
+        seconds = time.perf_counter() - t1 + (setup if k == 0 else 0.0)
+        payloads.append({"status": status, "result": result, "error": error, "seconds": seconds,
+                         "worker": worker})
+    return payloads
 
 
 def result_to_evaluation(payload: dict, design, phantom, settings: EvalSettings) -> Evaluation:
@@ -300,7 +335,10 @@ def _execute(tasks, todo, evaluate, settings, store, backend, jobs, scheduler, p
     window = _INFLIGHT_PER_WORKER * runner.workers if runner.workers > 1 or backend == "dask" else 1
     bar = tqdm(total=len(tasks), initial=len(tasks) - len(todo), unit="phantom", disable=not progress,
                dynamic_ncols=True, desc="sweep")
-    queue = iter(todo)
+    # Phantoms of one design go to a worker together so the model's per-design set-up is paid once per chunk;
+    # small chunks keep the store fresh (a kill loses at most the chunks in flight).
+    chunk_size = CHUNK_PHANTOMS if getattr(evaluate, "prepare", None) is not None else 1
+    queue = iter(_chunks(todo, tasks, chunk_size))
     pending: dict = {}
     failed = 0
     warned_threads = False
@@ -309,32 +347,33 @@ def _execute(tasks, todo, evaluate, settings, store, backend, jobs, scheduler, p
         with _sigterm_as_interrupt():
             while True:
                 while len(pending) < window:
-                    i = next(queue, None)
-                    if i is None:
+                    chunk = next(queue, None)
+                    if chunk is None:
                         break
-                    design, phantom = tasks[i]
-                    pending[runner.submit(_evaluate_one, evaluate, design, phantom, settings)] = i
+                    design = tasks[chunk[0]][0]
+                    pending[runner.submit(_evaluate_chunk, evaluate, design, [tasks[i][1] for i in chunk],
+                                          settings)] = chunk
                 if not pending:
                     break
                 # Results first, then any task that raised: its .result() re-raises the model's bug and
                 # stops the sweep only after everything that did arrive is stored.
                 for fut in sorted(runner.wait_any(pending), key=lambda f: f.exception() is not None):
-                    i = pending.pop(fut)
-                    design, phantom = tasks[i]
-                    payload = fut.result()
-                    row = result_to_evaluation(payload, design, phantom, settings)
-                    store.put(row)
-                    failed += not row.ok
-                    if not row.ok:
-                        log.warning("phantom %d of %s failed: %s", phantom.index, design.describe(),
-                                    (row.error or "").splitlines()[0])
-                    many = {k: n for k, n in payload["worker"]["blas_threads"].items() if n > 1}
-                    if many and runner.workers > 1 and not warned_threads:
-                        log.warning("worker %s runs BLAS/OpenMP with more than one thread: %s",
-                                    payload["worker"]["pid"], many)
-                        warned_threads = True
-                    bar.update(1)
-                    bar.set_postfix(failed=failed, refresh=False)
+                    chunk = pending.pop(fut)
+                    for i, payload in zip(chunk, fut.result(), strict=True):
+                        design, phantom = tasks[i]
+                        row = result_to_evaluation(payload, design, phantom, settings)
+                        store.put(row)
+                        failed += not row.ok
+                        if not row.ok:
+                            log.warning("phantom %d of %s failed: %s", phantom.index, design.describe(),
+                                        (row.error or "").splitlines()[0])
+                        many = {k: n for k, n in payload["worker"]["blas_threads"].items() if n > 1}
+                        if many and runner.workers > 1 and not warned_threads:
+                            log.warning("worker %s runs BLAS/OpenMP with more than one thread: %s",
+                                        payload["worker"]["pid"], many)
+                            warned_threads = True
+                        bar.update(1)
+                        bar.set_postfix(failed=failed, refresh=False)
         aborted = False
     except KeyboardInterrupt:
         log.warning("interrupted: every finished phantom is stored in %s; run the same command to resume",

@@ -293,3 +293,34 @@ def test_model_return_contract():
     assert not nan.ok and "non-finite" in nan.error
     with pytest.raises(LatticeoptError, match="without 'v_rel'"):
         result_to_evaluation(payload({"V_rel": 0.1}), design, phantom, settings)
+
+
+def _prepare_fake(design, settings):
+    """TEST DOUBLE of a per-design set-up hook: logs each preparation, then evaluates like fake_evaluate."""
+    log = os.environ.get(LOG_ENV)
+    if log:
+        with open(log + ".prepare", "a") as fh:
+            fh.write(f"{design.content_hash()}\n")
+    return lambda phantom: fake_evaluate(design, phantom, settings)
+
+
+def fake_evaluate_prepared(design, phantom, settings) -> dict:
+    """TEST DOUBLE exposing the ``prepare`` hook the coupled model uses."""
+    return _prepare_fake(design, settings)(phantom)
+
+
+fake_evaluate_prepared.prepare = _prepare_fake
+
+
+def test_prepare_hook_runs_once_per_chunk_of_one_design(tmp_path, monkeypatch):
+    from latticeopt.sweep import CHUNK_PHANTOMS
+
+    monkeypatch.setenv(LOG_ENV, str(tmp_path / "evals.log"))
+    study = _study(tmp_path, n1=5, n2=3)  # 8 phantoms per design, 2 designs
+    plain = run_sweep(study, fake_evaluate, progress=False, out_dir=tmp_path / "plain", outputs=False)
+    prepared = run_sweep(study, fake_evaluate_prepared, progress=False, out_dir=tmp_path / "prep", outputs=False)
+    assert [e.v_rel for e in prepared.evaluations] == [e.v_rel for e in plain.evaluations]
+    preps = (tmp_path / "evals.log.prepare").read_text().splitlines()
+    per_design = -(-8 // CHUNK_PHANTOMS)
+    assert len(preps) == 2 * per_design  # chunks never mix designs
+    assert len(set(preps[:per_design])) == 1 and preps[0] != preps[-1]
