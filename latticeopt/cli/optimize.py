@@ -1,0 +1,81 @@
+"""``latticeopt optimize``: optimize continuous design variables of a study with nlopt (resumable)."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def register(sub) -> None:
+    from ..optimize import ALGORITHMS
+
+    p = sub.add_parser(
+        "optimize", help="optimize lattice geometry with nlopt over a study's fixed phantoms",
+        description="Maximize an objective of V_rel (mean, robust quantile, uniformity) over the design variables "
+                    "of a study's [optimize] table with an nlopt algorithm. Every phantom result goes to the "
+                    "study's results store (shared with sweeps): stored designs are read, not recomputed, and an "
+                    "interrupted run resumes by replaying its path from the store. Schema: docs/studies.md. "
+                    f"Algorithms: {', '.join(ALGORITHMS)}.")
+    p.add_argument("study", metavar="STUDY.toml", help="study file with an [optimize] table "
+                   "(e.g. studies/optimize_square.toml)")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a study key, dotted for tables, value in TOML syntax "
+                        "(e.g. --set optimize.algorithm=LN_COBYLA --set optimize.max_evals=20); repeatable")
+    p.add_argument("--jobs", "-j", type=int, default=None,
+                   help="worker processes for the phantoms of each design (default: the study's jobs)")
+    p.add_argument("--backend", choices=("local", "dask"), default="local",
+                   help="local processes (default) or a dask.distributed cluster")
+    p.add_argument("--scheduler", default=None, metavar="ADDR", help="dask scheduler address (with --backend dask)")
+    p.add_argument("--out", default=None, help="output folder and results store (default: the study's out)")
+    p.add_argument("--evaluate", default=None, metavar="MODULE:FUNCTION",
+                   help="model evaluating one phantom (same as --set model=...)")
+    p.add_argument("--dry-run", action="store_true",
+                   help="validate, print the effective problem and what the store holds, and stop")
+    p.add_argument("--quiet", "-q", action="store_true", help="no line per evaluation")
+    p.set_defaults(func=run_optimize_command)
+
+
+def _step_line(step) -> str:
+    x = ", ".join(f"{k.removesuffix('_mm')}={val:.4f}" for k, val in step.x.items())
+    a = step.assessment
+    if a is None:
+        return f"[{step.index:3d}] start {step.start} {x}: not evaluated ({step.note})"
+    src = "repeat" if step.repeat else f"{a.computed} computed, {a.seconds:.1f} s"
+    flag = "" if step.feasible else "  INFEASIBLE"
+    return f"[{step.index:3d}] start {step.start} {x}: score {step.score:.5g} ± {step.se:.2g} ({src}){flag}"
+
+
+def run_optimize_command(args: argparse.Namespace) -> int:
+    import json
+
+    from ..errors import ParameterError
+    from ..optimize import effective_bounds_text, load_optimization, run_optimization
+
+    overrides = list(args.overrides)
+    if args.evaluate is not None:
+        overrides.append(f"model={json.dumps(args.evaluate)}")
+    if args.out is not None:
+        overrides.append(f"out={json.dumps(args.out)}")
+    opt = load_optimization(args.study, overrides)
+    if args.jobs is not None and args.jobs < 1:
+        raise ParameterError("--jobs", "an integer >= 1", args.jobs)
+    if args.scheduler is not None and args.backend != "dask":
+        raise ParameterError("--scheduler", "no scheduler unless --backend dask", args.scheduler)
+    cfg, problem, study = opt.config, opt.problem, opt.study
+    if args.dry_run:
+        print(f"{study.name}: maximize {cfg.objective.describe()} with {cfg.algorithm} over "
+              f"{effective_bounds_text(problem)}; start {dict(zip(problem.names, problem.start))}; "
+              f"{len(study.phantoms)} phantoms + {len(opt.probes)} probes per design; max_evals {cfg.max_evals}; "
+              f"model {study.settings.model}; mesh {study.settings.mesh.mesher} {study.settings.mesh.size_mm:g} mm; "
+              f"out {study.out_dir}")
+        for t in problem.folded:
+            print(f"bound tightened: {t}")
+        return 0
+    callback = None if args.quiet else (lambda step: print(_step_line(step), flush=True))
+    result = run_optimization(opt, jobs=args.jobs, backend=args.backend, scheduler=args.scheduler,
+                              callback=callback)
+    print(f"{len(result.history)} calls, {result.computed} phantoms computed, {result.seconds:.1f} s")
+    for line in result.report:
+        print(line)
+    for name, path in result.outputs.items():
+        print(f"wrote {name}: {path}")
+    return 0

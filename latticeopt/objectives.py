@@ -1,0 +1,208 @@
+"""What the optimizer maximizes: statistics of V_rel over a design's fixed phantom set.
+
+Every design is evaluated on the *same* phantoms (common random numbers, :mod:`latticeopt.phantoms`), so a
+difference between two designs is a difference of designs, not of draws, and the objective is a deterministic
+function of the design (no sampling noise along the optimizer's path). The terms:
+
+``mean``
+    Mean V_rel over the study's random phantoms (the paper's metric, eq. 5 averaged over phantoms).
+``robust``
+    The lower ``quantile`` (default 0.1: the lower decile) of V_rel over the same phantoms
+    (``numpy.quantile``, linear interpolation): how well the design does on its worse touches.
+``uniformity``
+    Spatial uniformity of sensitivity: ``1 - std / mean`` (population coefficient of variation, ``ddof = 0``)
+    of V_rel over a *probe grid* of single touches, identical but for their location: one touch of
+    ``probe_radius_mm`` pressed ``probe_depth_mm`` at the centre of every cell of an ``n x n`` partition of the
+    sensor (:meth:`Objective.probes`). 1 means every location reads the same V_rel; it is 1 - CV, so it can
+    be negative when the spread exceeds the mean. A separate probe set is used, not the random phantoms binned
+    by position, because random touches differ in depth, radius and count as well as in location.
+
+The score is ``sum(weight_k * term_k)`` with weights >= 0 (the terms have different scales: mean V_rel is a few
+percent while uniformity is near 1, so choose weights with that in mind). Its standard error over the phantoms:
+for ``mean`` alone the usual ``std(ddof=1) / sqrt(n)``; otherwise a bootstrap over phantoms (random phantoms and
+probes resampled independently, a fixed seed, :attr:`Objective.bootstrap` resamples) — deterministic, so a
+resumed run reports the same numbers. Paired differences between two designs resample the *same* phantom
+indices for both, which is what common random numbers buy.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import _validate as v
+from .errors import ParameterError
+from .phantoms import Phantom
+from .touches import Touch
+
+__all__ = ["TERMS", "Objective", "ObjectiveValue"]
+
+#: The objective terms, each with a one-line meaning (documentation and error messages).
+TERMS = {"mean": "mean V_rel over the random phantoms",
+         "robust": "lower quantile of V_rel over the random phantoms",
+         "uniformity": "1 - coefficient of variation of V_rel over the probe grid"}
+_BOOTSTRAP_SEED = 20250101
+
+
+@dataclass(frozen=True)
+class ObjectiveValue:
+    """An objective evaluated on one design.
+
+    Attributes
+    ----------
+    score
+        ``sum(weight * term)``; NaN when a needed term is undefined (no successful phantom).
+    se
+        Standard error of the score over the phantoms.
+    terms
+        Every term with a non-zero weight, name -> value.
+    """
+
+    score: float
+    se: float
+    terms: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Objective:
+    """Weights of the terms (:data:`TERMS`) and their settings.
+
+    Parameters
+    ----------
+    weights
+        ``(term, weight)`` pairs, weights >= 0, at least one > 0.
+    quantile
+        Quantile of the ``robust`` term, in (0, 1).
+    probe_grid
+        ``n`` of the ``n x n`` uniformity probe grid (>= 2).
+    probe_radius_mm, probe_depth_mm
+        Indenter of every probe (mm).
+    bootstrap
+        Bootstrap resamples for standard errors (>= 100).
+    """
+
+    weights: tuple[tuple[str, float], ...] = (("mean", 1.0),)
+    quantile: float = 0.1
+    probe_grid: int = 3
+    probe_radius_mm: float = 7.5
+    probe_depth_mm: float = 3.0
+    bootstrap: int = 1000
+
+    def __post_init__(self) -> None:
+        w = dict(self.weights)
+        for k, val in w.items():
+            if k not in TERMS:
+                raise ParameterError("objective", "terms among " + ", ".join(TERMS), k)
+            w[k] = v.real(k, val, lo=0)
+        if not any(x > 0 for x in w.values()):
+            raise ParameterError("objective", "at least one term with a weight > 0", dict(self.weights))
+        object.__setattr__(self, "weights", tuple((k, w[k]) for k in TERMS if w.get(k, 0) > 0))
+        object.__setattr__(self, "quantile", v.real("quantile", self.quantile, lo=0, hi=1, lo_open=True,
+                                                    hi_open=True))
+        object.__setattr__(self, "probe_grid", v.integer("probe_grid", self.probe_grid, lo=2, hi=10))
+        object.__setattr__(self, "probe_radius_mm", v.real("probe_radius_mm", self.probe_radius_mm, lo=0,
+                                                           lo_open=True))
+        object.__setattr__(self, "probe_depth_mm", v.real("probe_depth_mm", self.probe_depth_mm, lo=0,
+                                                          lo_open=True))
+        object.__setattr__(self, "bootstrap", v.integer("bootstrap", self.bootstrap, lo=100))
+
+    @property
+    def needs_probes(self) -> bool:
+        return "uniformity" in dict(self.weights)
+
+    def describe(self) -> str:
+        parts = []
+        for k, w in self.weights:
+            name = f"q{self.quantile:g} V_rel" if k == "robust" else ("mean V_rel" if k == "mean" else k)
+            parts.append(name if w == 1 else f"{w:g} x {name}")
+        return " + ".join(parts)
+
+    def probes(self, size_mm: float) -> tuple[Phantom, ...]:
+        """The uniformity probe grid on a ``size_mm`` sensor (empty unless ``uniformity`` has a weight).
+
+        Touch ``i`` sits at the centre of cell ``(i % n, i // n)`` of the ``n x n`` partition; kind ``"press"``.
+        """
+        if not self.needs_probes:
+            return ()
+        n, r = self.probe_grid, self.probe_radius_mm
+        if r > size_mm / (2 * n):
+            raise ParameterError("probe_radius_mm", f"<= {size_mm / (2 * n):g} mm so every probe of the "
+                                 f"{n} x {n} grid lies in its own cell", r)
+        c = (np.arange(n) + 0.5) * size_mm / n
+        return tuple(Phantom((Touch(x_mm=float(c[i % n]), y_mm=float(c[i // n]), radius_mm=r,
+                                    depth_mm=self.probe_depth_mm),), index=i, kind="press") for i in range(n * n))
+
+    # -- evaluation --------------------------------------------------------------------------------------
+    def _terms(self, random_v: np.ndarray, probe_v: np.ndarray) -> dict:
+        out = {}
+        for k, _ in self.weights:
+            if k == "mean":
+                out[k] = float(np.mean(random_v)) if random_v.size else math.nan
+            elif k == "robust":
+                out[k] = float(np.quantile(random_v, self.quantile)) if random_v.size else math.nan
+            else:
+                m = float(np.mean(probe_v)) if probe_v.size else math.nan
+                out[k] = 1.0 - float(np.std(probe_v)) / m if m > 0 else math.nan
+        return out
+
+    def _score(self, terms: Mapping[str, float]) -> float:
+        return float(sum(w * terms[k] for k, w in self.weights))
+
+    def _bootstrap(self, sets: Sequence[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
+        """Scores of every design in ``sets`` under the same resampled phantom indices, shape ``(B, len(sets))``."""
+        rng = np.random.default_rng(_BOOTSTRAP_SEED)
+        n_r, n_p = sets[0][0].size, sets[0][1].size
+        out = np.empty((self.bootstrap, len(sets)))
+        for b in range(self.bootstrap):
+            ir = rng.integers(0, n_r, n_r) if n_r else np.zeros(0, int)
+            ip = rng.integers(0, n_p, n_p) if n_p else np.zeros(0, int)
+            for j, (r, p) in enumerate(sets):
+                out[b, j] = self._score(self._terms(r[ir], p[ip]))
+        return out
+
+    def evaluate(self, random_v: Sequence[float], probe_v: Sequence[float] = ()) -> ObjectiveValue:
+        """The score of one design from its V_rel on the random phantoms and on the probes.
+
+        Parameters
+        ----------
+        random_v
+            V_rel of the successful random phantoms, shape ``(n,)``.
+        probe_v
+            V_rel of the successful probes, shape ``(m,)`` (only used by ``uniformity``).
+        """
+        r, p = np.asarray(random_v, dtype=float), np.asarray(probe_v, dtype=float)
+        terms = self._terms(r, p)
+        score = self._score(terms)
+        if not math.isfinite(score):
+            return ObjectiveValue(math.nan, math.nan, terms)
+        if self.weights == (("mean", self.weights[0][1]),):
+            se = self.weights[0][1] * float(np.std(r, ddof=1)) / math.sqrt(r.size) if r.size > 1 else math.nan
+        else:
+            boot = self._bootstrap([(r, p)])[:, 0]
+            se = float(np.std(boot[np.isfinite(boot)], ddof=1)) if np.isfinite(boot).sum() > 1 else math.nan
+        return ObjectiveValue(score, se, terms)
+
+    def paired_difference(self, a: tuple[Sequence[float], Sequence[float]],
+                          b: tuple[Sequence[float], Sequence[float]]) -> tuple[float, float]:
+        """``score(a) - score(b)`` and its paired standard error.
+
+        ``a`` and ``b`` are ``(random_v, probe_v)`` of two designs over the *same* phantoms, in the same order
+        (only phantoms both evaluated successfully). For ``mean`` alone the SE is that of the mean of the
+        per-phantom differences; otherwise a bootstrap resampling the same indices for both designs.
+        """
+        ra, pa = (np.asarray(x, dtype=float) for x in a)
+        rb, pb = (np.asarray(x, dtype=float) for x in b)
+        if ra.shape != rb.shape or pa.shape != pb.shape:
+            raise ParameterError("paired_difference", "V_rel of both designs on the same phantoms",
+                                 f"{ra.size}+{pa.size} vs {rb.size}+{pb.size} values")
+        diff = self.evaluate(ra, pa).score - self.evaluate(rb, pb).score
+        if self.weights == (("mean", self.weights[0][1]),):
+            d = self.weights[0][1] * (ra - rb)
+            return diff, float(np.std(d, ddof=1) / math.sqrt(d.size)) if d.size > 1 else math.nan
+        boot = self._bootstrap([(ra, pa), (rb, pb)])
+        delta = boot[:, 0] - boot[:, 1]
+        delta = delta[np.isfinite(delta)]
+        return diff, float(np.std(delta, ddof=1)) if delta.size > 1 else math.nan

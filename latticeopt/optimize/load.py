@@ -1,0 +1,160 @@
+"""Reading an optimization study: a ``kind = "grid"`` study without ``[grid]``, plus an ``[optimize]`` table.
+
+Errors name the file and dotted key (or ``--set key``), what was expected and what arrived.
+"""
+
+from __future__ import annotations
+
+import numbers
+import tomllib
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..design import LatticeDesign
+from ..errors import ParameterError
+from ..objectives import TERMS, Objective
+from ..study import apply_overrides, study_from_dict
+from ..touches import validate_touches
+from .config import CONTINUOUS_FIELDS, Constraints, OptimizeConfig, Variable
+from .problem import Optimization, Problem
+
+__all__ = ["load_optimization", "optimization_from_dict"]
+
+_KEYS = ("algorithm", "local_algorithm", "objective", "quantile", "uniformity", "bootstrap", "constraints",
+         "constraint_method", "penalty_weight", "max_evals", "max_time_s", "xtol_abs_mm", "xtol_rel", "ftol_abs",
+         "ftol_rel", "initial_step", "starts", "seed", "variables")
+_VAR_KEYS = ("lower", "upper", "start")
+_CONSTRAINT_KEYS = ("min_channel_mm", "min_island_mm", "min_substrate_mm", "max_hydrogel_stretch")
+_UNIFORMITY_KEYS = ("grid", "radius_mm", "depth_mm")
+
+
+@dataclass(frozen=True)
+class _Namer:
+    source: str
+    overridden: frozenset[str]
+
+    def __call__(self, key: str) -> str:
+        parts = key.split(".")
+        if any(".".join(parts[:i]) in self.overridden for i in range(len(parts), 0, -1)):
+            return f"--set {key}"
+        return f"{self.source}: {key}"
+
+    def known(self, table: object, allowed: Sequence[str], key: str) -> dict:
+        if not isinstance(table, Mapping):
+            raise ParameterError(self(key), "a table", table)
+        for k in table:
+            if k not in allowed:
+                raise ParameterError(self(f"{key}.{k}"), "a known key: one of " + ", ".join(allowed), k)
+        return dict(table)
+
+
+def _number(name: str, value: object) -> float:
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise ParameterError(name, "a number", value)
+    return float(value)
+
+
+def _variables(nm: _Namer, raw: object, design: dict) -> tuple[Variable, ...]:
+    table = nm.known(raw, CONTINUOUS_FIELDS, "optimize.variables")
+    out, defaults = [], LatticeDesign()
+    for name, spec in table.items():
+        key = f"optimize.variables.{name}"
+        if isinstance(spec, list):
+            spec = dict(zip(("lower", "upper"), spec)) if len(spec) == 2 else {"bad": spec}
+        spec = nm.known(spec, _VAR_KEYS, key)
+        if "lower" not in spec or "upper" not in spec:
+            raise ParameterError(nm(key), "{ lower = L, upper = U, start = S } or [L, U] (start from [design])",
+                                 raw[name])
+        if "start" in spec and name in design and design[name] != spec["start"]:
+            raise ParameterError(nm(f"{key}.start"), f"one start value (design.{name} = {design[name]!r} differs)",
+                                 spec["start"])
+        start = spec.get("start", design.get(name, getattr(defaults, name)))
+        try:
+            out.append(Variable(name, _number(f"{key}.lower", spec["lower"]), _number(f"{key}.upper", spec["upper"]),
+                                _number(f"{key}.start", start)))
+        except ParameterError as exc:
+            sub = exc.name.rsplit(".", 1)[1] if "." in exc.name else ""
+            raise ParameterError(nm(f"{key}.{sub}" if sub in _VAR_KEYS else key), exc.expected, exc.got) from None
+    return tuple(out)
+
+
+def _objective(nm: _Namer, tab: dict) -> Objective:
+    raw = tab.get("objective", "mean")
+    if isinstance(raw, str):
+        if raw not in TERMS:
+            raise ParameterError(nm("optimize.objective"), "one of " + ", ".join(TERMS) + " or a table of weights",
+                                 raw)
+        weights = {raw: 1.0}
+    else:
+        weights = nm.known(raw, list(TERMS), "optimize.objective")
+    uni = nm.known(tab.get("uniformity", {}), _UNIFORMITY_KEYS, "optimize.uniformity")
+    kw = {"weights": tuple(weights.items()), "quantile": tab.get("quantile", 0.1),
+          "probe_grid": uni.get("grid", 3), "probe_radius_mm": uni.get("radius_mm", 7.5),
+          "probe_depth_mm": uni.get("depth_mm", 3.0), "bootstrap": tab.get("bootstrap", 1000)}
+    keys = {"quantile": "optimize.quantile", "probe_grid": "optimize.uniformity.grid",
+            "bootstrap": "optimize.bootstrap",
+            "probe_radius_mm": "optimize.uniformity.radius_mm", "probe_depth_mm": "optimize.uniformity.depth_mm"}
+    try:
+        return Objective(**kw)
+    except ParameterError as exc:
+        key = keys.get(exc.name, f"optimize.objective.{exc.name}" if exc.name in TERMS else "optimize.objective")
+        raise ParameterError(nm(key), exc.expected, exc.got) from None
+
+
+def optimization_from_dict(raw: Mapping, *, source: str = "<dict>", overridden: Sequence[str] = (),
+                           default_name: str = "optimize") -> Optimization:
+    """Validate a parsed optimization study (see the module docstring)."""
+    nm = _Namer(source, frozenset(overridden))
+    raw = dict(raw)
+    if "optimize" not in raw:
+        raise ParameterError(nm("optimize"), "an [optimize] table (with [optimize.variables])", None)
+    if "grid" in raw:
+        raise ParameterError(nm("grid"), "no [grid] in an optimization study (the variables are in "
+                             "[optimize.variables]; [design] fixes the rest)", raw["grid"])
+    if raw.get("kind", "grid") != "grid":
+        raise ParameterError(nm("kind"), "'grid' (random phantoms) for an optimization study", raw["kind"])
+    tab = nm.known(raw.pop("optimize"), _KEYS, "optimize")
+    design = raw.get("design", {})
+    if not isinstance(design, Mapping):
+        raise ParameterError(nm("design"), "a table", design)
+    design = dict(design)
+    variables = _variables(nm, tab.get("variables", {}), design)
+    raw["design"] = {**design, **{x.name: x.start for x in variables}}
+    study = study_from_dict(raw, source=source, overridden=overridden, default_name=default_name)
+    ckeys = nm.known(tab.get("constraints", {}), _CONSTRAINT_KEYS, "optimize.constraints")
+    try:
+        constraints = Constraints(**ckeys)
+    except (ParameterError, TypeError) as exc:
+        name = getattr(exc, "name", "")
+        raise ParameterError(nm(f"optimize.constraints.{name}"), getattr(exc, "expected", str(exc)),
+                             getattr(exc, "got", ckeys)) from None
+    objective = _objective(nm, tab)
+    rest = {k: tab[k] for k in _KEYS if k in tab and k not in ("objective", "quantile", "uniformity", "bootstrap",
+                                                                  "constraints", "variables")}
+    try:
+        config = OptimizeConfig(variables=variables, objective=objective, constraints=constraints, **rest)
+        problem = Problem.build(study.designs[0], variables, constraints)
+        config.check_constraint_method(problem)
+    except ParameterError as exc:
+        raise ParameterError(nm(f"optimize.{exc.name}"), exc.expected, exc.got) from None
+    try:
+        probes = objective.probes(study.designs[0].size_mm)
+        for p in probes:
+            validate_touches(study.designs[0], p.touches)
+    except ParameterError as exc:
+        raise ParameterError(nm("optimize.uniformity"), exc.expected, exc.got) from None
+    return Optimization(study=study, config=config, problem=problem, probes=probes)
+
+
+def load_optimization(path: str | Path, overrides: Sequence[str] = ()) -> Optimization:
+    """Read, override (``--set`` strings) and validate an optimization study file."""
+    p = Path(path)
+    try:
+        raw = tomllib.loads(p.read_text())
+    except OSError as exc:
+        raise ParameterError("STUDY", "a readable TOML study file", f"{p} ({exc.strerror})") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ParameterError(str(p), "valid TOML", str(exc)) from None
+    raw, keys = apply_overrides(raw, overrides)
+    return optimization_from_dict(raw, source=str(p), overridden=keys, default_name=p.stem)

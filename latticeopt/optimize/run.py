@@ -1,0 +1,174 @@
+"""Running an optimization study through the results store (the sweep engine) and writing its outputs."""
+
+from __future__ import annotations
+
+import contextlib
+import functools
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from ..design import LatticeDesign
+from ..errors import LatticeoptError, ParameterError
+from ..objectives import Objective
+from ..phantoms import Phantom
+from ..study import EvalSettings
+from .driver import Assessment, Optimum, Step, minimize
+from .problem import Optimization
+
+__all__ = ["OptimizationResult", "assess_design", "run_optimization"]
+
+
+def _mean_se(values: Sequence[float]) -> tuple[float, float]:
+    x = np.asarray(values, dtype=float)
+    if x.size == 0:
+        return math.nan, math.nan
+    return float(x.mean()), float(x.std(ddof=1) / math.sqrt(x.size)) if x.size > 1 else math.nan
+
+
+def assess_design(design: LatticeDesign, *, phantoms: Sequence[Phantom], probes: Sequence[Phantom],
+                  objective: Objective, settings: EvalSettings, out_dir: str | Path, evaluate: Callable,
+                  need_stretch: bool = False, jobs: int = 1, backend: str = "local", scheduler=None) -> Assessment:
+    """Evaluate ``design`` on every phantom (and probe) through the store and score it.
+
+    Phantoms already stored under ``settings.key`` are read, the rest computed (``jobs`` in parallel) and
+    stored as they finish (:func:`latticeopt.sweep.evaluate_designs`). Failed phantoms are left out of every
+    statistic and counted in ``n_failed``.
+    """
+    from ..sweep import evaluate_designs
+
+    t0 = time.perf_counter()
+    evs, computed = evaluate_designs([design], list(phantoms) + list(probes), settings, out_dir, evaluate,
+                                     jobs=jobs, backend=backend, scheduler=scheduler, label=design.describe())
+    n = len(phantoms)
+    vals = [e.v_rel if e.ok else math.nan for e in evs]
+    rnd, prb = np.asarray(vals[:n]), np.asarray(vals[n:])
+    value = objective.evaluate(rnd[np.isfinite(rnd)], prb[np.isfinite(prb)])
+    mean, se = _mean_se(rnd[np.isfinite(rnd)])
+    stretch = None
+    if need_stretch:
+        got = [e.extra.get("max_hydrogel_stretch") for e in evs if e.ok]
+        if any(s is None for s in got):
+            raise LatticeoptError(f"model {settings.model} returned no 'max_hydrogel_stretch', which "
+                                  "optimize.constraints.max_hydrogel_stretch needs")
+        stretch = max(got) if got else None
+    n_ok = sum(e.ok for e in evs)
+    return Assessment(score=value.score, se=value.se, terms=value.terms, v_rel_mean=mean, v_rel_se=se, n_ok=n_ok,
+                      n_failed=len(evs) - n_ok, max_stretch=stretch, computed=computed,
+                      seconds=time.perf_counter() - t0, design_key=design.content_hash(),
+                      random_v=tuple(float(x) for x in rnd), probe_v=tuple(float(x) for x in prb))
+
+
+# -- running a study ------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class OptimizationResult:
+    """What :func:`run_optimization` did: the optimum, the history, the starts, the outputs."""
+
+    optimization: Optimization
+    settings: EvalSettings
+    out_dir: Path
+    optimum: Optimum
+    seconds: float
+    paired: tuple[float, float] | None = None
+    outputs: dict = field(default_factory=dict)
+    report: tuple[str, ...] = ()
+
+    @property
+    def best(self) -> Step | None:
+        return self.optimum.best
+
+    @property
+    def history(self) -> tuple[Step, ...]:
+        return self.optimum.history
+
+    @property
+    def computed(self) -> int:
+        """Phantoms computed by this run (the rest were read from the store)."""
+        return sum(s.assessment.computed for s in self.history if s.assessment is not None and not s.repeat)
+
+
+@contextlib.contextmanager
+def _dask_client(scheduler, jobs: int):
+    """A ``distributed.Client``: the given one, one connected to an address, or one on a local cluster of ``jobs``
+    single-threaded worker processes (as :mod:`latticeopt.execution` starts them)."""
+    if scheduler is not None and not isinstance(scheduler, str):
+        yield scheduler
+        return
+    try:
+        from distributed import Client, LocalCluster
+    except ImportError as exc:
+        raise ParameterError("backend", "'local', or 'dask' with dask.distributed installed", f"dask ({exc})") from None
+    with contextlib.ExitStack() as stack:
+        if scheduler is None:
+            cluster = stack.enter_context(LocalCluster(n_workers=jobs, threads_per_worker=1, processes=True,
+                                                       dashboard_address=None))
+            client = stack.enter_context(Client(cluster))
+        else:
+            try:
+                client = stack.enter_context(Client(scheduler, timeout="30s"))
+            except (OSError, TimeoutError) as exc:
+                raise LatticeoptError(f"cannot reach the dask scheduler at {scheduler!r}: {exc}") from None
+        yield client
+
+
+def run_optimization(opt: Optimization, evaluate: Callable | None = None, *, jobs: int | None = None,
+                     backend: str = "local", scheduler=None, out_dir: str | Path | None = None,
+                     outputs: bool = True, callback: Callable[[Step], None] | None = None) -> OptimizationResult:
+    """Run an optimization study through the results store and write its outputs.
+
+    Parameters
+    ----------
+    opt
+        From :func:`load_optimization`.
+    evaluate
+        Top-level ``evaluate(design, phantom, settings) -> dict`` (``None``: the study's ``model``). A given
+        function replaces ``settings.model`` (part of the store key), as in :func:`latticeopt.sweep.run_sweep`.
+    jobs, backend, scheduler
+        Parallel phantoms of each design (:func:`latticeopt.sweep.evaluate_designs`).
+    out_dir
+        Folder of the store and outputs (default: the study's ``out``).
+    outputs
+        Write the history CSV, plots and report (:mod:`latticeopt.optimize.report`).
+    callback
+        Called with every :class:`Step`.
+    """
+    from ..sweep import resolve_model
+
+    t0 = time.perf_counter()
+    study = opt.study
+    settings = study.settings
+    if evaluate is None:
+        evaluate = resolve_model(settings.model)
+    else:
+        settings = replace(settings, model=f"{evaluate.__module__}:{evaluate.__qualname__}")
+    out = Path(study.out_dir if out_dir is None else out_dir)
+    jobs = study.jobs if jobs is None else jobs
+    out.mkdir(parents=True, exist_ok=True)
+    with contextlib.ExitStack() as stack:
+        if backend == "dask":  # one cluster connection for the whole run, not one per candidate design
+            scheduler = stack.enter_context(_dask_client(scheduler, jobs))
+        assess = functools.partial(
+            assess_design, phantoms=study.phantoms, probes=opt.probes, objective=opt.config.objective,
+            settings=settings, out_dir=out, evaluate=evaluate,
+            need_stretch=opt.config.constraints.max_hydrogel_stretch is not None, jobs=jobs, backend=backend,
+            scheduler=scheduler)
+        optimum = minimize(opt.problem, opt.config, assess, callback=callback)
+    paired = None
+    if optimum.best is not None and optimum.start_step is not None and optimum.start_step.assessment is not None:
+        a, b = optimum.best.assessment, optimum.start_step.assessment
+        ra, rb, pa, pb = (np.asarray(x) for x in (a.random_v, b.random_v, a.probe_v, b.probe_v))
+        keep_r, keep_p = np.isfinite(ra) & np.isfinite(rb), np.isfinite(pa) & np.isfinite(pb)
+        if keep_r.any():
+            paired = opt.config.objective.paired_difference((ra[keep_r], pa[keep_p]), (rb[keep_r], pb[keep_p]))
+    result = OptimizationResult(optimization=opt, settings=settings, out_dir=out, optimum=optimum,
+                                seconds=time.perf_counter() - t0, paired=paired)
+    if outputs:
+        from .report import write_optimization_outputs
+
+        files, lines = write_optimization_outputs(result)
+        result = replace(result, outputs=files, report=tuple(lines))
+    return result
