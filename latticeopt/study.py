@@ -33,7 +33,7 @@ from pathlib import Path
 from . import _validate as v
 from .design import DESIGN_FIELDS, LatticeDesign
 from .errors import ParameterError
-from .mesh import MeshSettings
+from .mesh import MESHER_REVISION, MeshSettings
 from .phantoms import MAX_TOUCHES, Comparison, Phantom, PressSeries, RandomPhantoms
 from .touches import validate_touches
 
@@ -41,6 +41,8 @@ __all__ = ["DEFAULT_MODEL", "PHYSICS_KEYS", "STUDY_KINDS", "EvalSettings", "Stud
            "parse_override", "study_from_dict"]
 
 STUDY_KINDS = ("grid", "press")
+#: Bump when the coupled model's results change for the same inputs (stored rows then stop matching).
+MODEL_REVISION = 1
 #: The evaluation function a study uses unless it names another (``model = "module:function"``).
 DEFAULT_MODEL = "latticeopt.coupled:evaluate_phantom"
 
@@ -122,8 +124,13 @@ class EvalSettings:
         return dict(self.physics_items)
 
     def as_dict(self) -> dict:
-        """The identity-relevant content (everything but :attr:`cache_dir`)."""
-        return {"mesh": self.mesh.as_dict(), "physics": self.physics, "model": self.model}
+        """The identity-relevant content (everything but :attr:`cache_dir`).
+
+        Includes the mesher's and the model's revision numbers, so rows computed by an older mesher or
+        physics are never reused as current.
+        """
+        return {"mesh": self.mesh.as_dict(), "physics": self.physics, "model": self.model,
+                "revision": {"mesher": MESHER_REVISION[self.mesh.mesher], "model": MODEL_REVISION}}
 
     @property
     def key(self) -> str:
