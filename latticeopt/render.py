@@ -37,7 +37,13 @@ def render_mesh(mesh: TetMesh, path: str | Path, show_sealing: bool = False,
     """
     import pyvista as pv
 
-    path = Path(path)
+    # Without a display VTK first tries X, logs "bad X server connection" and falls back to off-screen
+    # rendering; that warning is harmless, so only errors are let through while rendering.
+    with pv.vtk_verbosity("error"):
+        return _render(pv, mesh, Path(path), show_sealing, window_size)
+
+
+def _render(pv, mesh: TetMesh, path: Path, show_sealing: bool, window_size: tuple[int, int]) -> Path:
     pl = pv.Plotter(off_screen=True, window_size=list(window_size))
     pl.set_background("white")
     L = float(mesh.nodes_mm[:, 0].max())

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..design import REGION_IDS, LatticeDesign
-from .tetmesh import TET_FACES, electrode_name
+from .tetmesh import TET_FACES, electrode_name, face_keys, keys_isin
 
 
 def boundary_faces(tets: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
@@ -28,7 +28,7 @@ def boundary_faces(tets: np.ndarray, mask: np.ndarray | None = None) -> np.ndarr
     """
     sel = tets if mask is None else tets[mask]
     faces = sel[:, TET_FACES].reshape(-1, 3)
-    key = np.sort(faces, axis=1)
+    key = face_keys(faces, int(tets.max()) + 1 if tets.size else 0)
     _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
     return faces[counts[inverse.ravel()] == 1]
 
@@ -47,15 +47,16 @@ def _polygon_area(poly: list) -> float:
 
 
 def _clip_fraction(t_coords: np.ndarray, z_coords: np.ndarray, lo_t: float, hi_t: float,
-                   lo_z: float, hi_z: float) -> np.ndarray:
+                   lo_z: float, hi_z: float, slack: float = 0.0) -> np.ndarray:
     """Fraction of each planar triangle (2D coords, two arrays ``(K, 3)``) inside an axis-aligned rectangle.
 
-    Sutherland–Hodgman clipping against the rectangle's four half-planes. Triangles entirely inside (all
-    of them on conforming meshes) skip the clipping.
+    Sutherland–Hodgman clipping against the rectangle's four half-planes. Triangles inside the rectangle
+    grown by ``slack`` (all of them on conforming meshes, up to rounding) count as fully inside and skip the
+    clipping.
     """
     frac = np.zeros(len(t_coords))
-    inside = ((t_coords.min(1) >= lo_t) & (t_coords.max(1) <= hi_t) & (z_coords.min(1) >= lo_z)
-              & (z_coords.max(1) <= hi_z))
+    inside = ((t_coords.min(1) >= lo_t - slack) & (t_coords.max(1) <= hi_t + slack)
+              & (z_coords.min(1) >= lo_z - slack) & (z_coords.max(1) <= hi_z + slack))
     frac[inside] = 1.0
     planes = ((0, lo_t, 1.0), (0, hi_t, -1.0), (1, lo_z, 1.0), (1, hi_z, -1.0))
     for k in np.nonzero(~inside)[0]:
@@ -109,8 +110,9 @@ def tag_facets(nodes: np.ndarray, tets: np.ndarray, region: np.ndarray, design: 
     gel_bnd = boundary_faces(tets, region == REGION_IDS["hydrogel"])
     facets["hydrogel_boundary"] = gel_bnd
     # Electrodes sit on the outer side walls of the hydrogel: gel-boundary faces that are also outer faces.
-    outer_keys = {tuple(f) for f in np.sort(outer, axis=1)}
-    is_outer = np.fromiter((tuple(f) in outer_keys for f in np.sort(gel_bnd, axis=1)), bool, len(gel_bnd))
+    n = len(nodes)
+    gel_keys, outer_keys = face_keys(gel_bnd, n), face_keys(outer, n)
+    is_outer = keys_isin(gel_keys, outer_keys)
     wall = gel_bnd[is_outer]
     n_wall = _normals(nodes, wall)
     pts = nodes[wall]  # (K, 3, 3)
@@ -126,7 +128,10 @@ def tag_facets(nodes: np.ndarray, tets: np.ndarray, region: np.ndarray, design: 
         centre = cx if t_axis == 0 else cy
         lo, hi = centre - width / 2, centre + width / 2
         cand = np.nonzero(on_wall & (pts[:, :, t_axis].max(axis=1) > lo) & (pts[:, :, t_axis].min(axis=1) < hi))[0]
-        frac = _clip_fraction(pts[cand][:, :, t_axis], pts[cand][:, :, 2], lo, hi, z0 - tol_mm, z1 + tol_mm)
+        # The patch is exactly the electrode rectangle: a gel wall reaching past the layer (tetwild's
+        # envelope) gets fractional weights rather than extra area.
+        frac = _clip_fraction(pts[cand][:, :, t_axis], pts[cand][:, :, 2], lo, hi, z0, z1,
+                              slack=1e-9 * design.size_mm)
         keep = frac > 1e-9
         name = electrode_name(k + 1)
         facets[name] = wall[cand[keep]]

@@ -33,6 +33,26 @@ def electrode_name(k: int) -> str:
     return f"electrode_{k}"
 
 
+def face_keys(faces: np.ndarray, n_nodes: int) -> np.ndarray:
+    """Orientation-independent key of each triangle: equal keys mean the same three nodes.
+
+    One int64 per face when ``n_nodes**3`` fits (sorting scalars is about 10x faster than sorting rows),
+    else the sorted node triple, shape ``(K, 3)``; compare keys only among calls with the same ``n_nodes``.
+    """
+    s = np.sort(np.asarray(faces, dtype=np.int64).reshape(-1, 3), axis=1)
+    if n_nodes < 2 ** 21:
+        return (s[:, 0] * n_nodes + s[:, 1]) * n_nodes + s[:, 2]
+    return s
+
+
+def keys_isin(keys: np.ndarray, among: np.ndarray) -> np.ndarray:
+    """Which of :func:`face_keys` ``keys`` occur in ``among`` (both from the same ``n_nodes``), shape ``(K,)``."""
+    if keys.ndim == 1:
+        return np.isin(keys, among)
+    row = [("", np.int64)] * 3
+    return np.isin(np.ascontiguousarray(keys).view(row).ravel(), np.ascontiguousarray(among).view(row).ravel())
+
+
 def tet_volumes(nodes: np.ndarray, tets: np.ndarray) -> np.ndarray:
     """Signed volumes of tets, shape ``(M,)`` (positive for positive orientation)."""
     a, b, c, d = (nodes[tets[:, i]] for i in range(4))
@@ -166,8 +186,8 @@ class TetMesh:
     def restrict(self, regions: tuple[str, ...] = ("hydrogel",)) -> tuple[TetMesh, np.ndarray]:
         """Sub-mesh of the tets in ``regions``, nodes renumbered.
 
-        Facet sets keep the triangles whose three nodes survive (and whose set is not the hydrogel
-        boundary's complement), so electrode patches carry over to the hydrogel sub-mesh.
+        Facet sets keep the triangles that are faces of kept tets, so electrode patches carry over to the
+        hydrogel sub-mesh (and ``top`` keeps only the part of the top surface the sub-mesh has).
 
         Returns
         -------
@@ -183,9 +203,13 @@ class TetMesh:
         node_ids = np.unique(tets)
         new_index = np.full(self.n_nodes, -1, dtype=np.int64)
         new_index[node_ids] = np.arange(len(node_ids))
+        n_sub = len(node_ids)
+        sub_faces = face_keys(new_index[tets][:, TET_FACES].reshape(-1, 3), n_sub)
         facets, weights = {}, {}
         for name, tri in self.facets.items():
             ok = np.all(new_index[tri] >= 0, axis=1)
+            # Three kept nodes are not enough: e.g. a top triangle over an island whose corners all touch gel.
+            ok[ok] = keys_isin(face_keys(new_index[tri[ok]], n_sub), sub_faces)
             facets[name] = new_index[tri[ok]]
             if name in self.facet_weights:
                 weights[name] = self.facet_weights[name][ok]
