@@ -4,7 +4,7 @@
 >>> mesh = mesh_design(LatticeDesign(width_mm=4, thickness_mm=3), MeshSettings(size_mm=3))  # doctest: +SKIP
 
 Default mesher for the square lattice: ``grid`` (structured, conforming). Measured in
-``benchmarks/bench_mesh.py`` (README table): at equal node count it is 10-100x faster than tetwild, its
+``benchmarks/bench_mesh.py`` (README table): at equal node count it is about 300x faster than tetwild, its
 region volumes and electrode areas are exact rather than within the envelope, and it is deterministic, so
 cached and fresh meshes agree bit for bit and a sweep repeats exactly. ``tetwild`` stays for patterns that
 are not axis-aligned and as an independent cross-check.
