@@ -42,9 +42,12 @@ class SymmetricSolver:
         (``mtype=-2``; saddle points such as mixed u-p mechanics).
     backend
         ``"auto"`` (PARDISO if available), ``"pardiso"`` or ``"scipy"``.
+    factorize
+        False: only analyse the pattern of ``A`` now (PARDISO); call :meth:`refactor` with the first real
+        values before :meth:`solve` (saves a numeric factorization when ``A`` is only a pattern template).
     """
 
-    def __init__(self, A, positive_definite: bool = True, backend: str = "auto"):
+    def __init__(self, A, positive_definite: bool = True, backend: str = "auto", factorize: bool = True):
         if backend not in BACKENDS:
             raise ValueError(f"backend: expected one of {BACKENDS}, got {backend!r}")
         if backend == "pardiso" and not pardiso_available():
@@ -70,7 +73,8 @@ class SymmetricSolver:
             self._ps._check_A(upper)
             self._ps.set_phase(11)
             self._ps._call_pardiso(upper, np.zeros((self.n, 1)))
-        self.refactor(A)
+        if factorize or self.backend == "scipy":
+            self.refactor(A)
 
     @staticmethod
     def _upper(A) -> sp.csr_matrix:

@@ -1,0 +1,320 @@
+"""Vectorised residual and tangent of the P1 neo-Hookean stack, with patch-wise mean dilatation.
+
+Discrete energy (lengths mm, moduli MPa, so forces come out in N)::
+
+    Pi(u) = sum_tets V_e mu_e / 2 (J_e^(-2/3) I1_e - 3)  +  sum_patches V_h U_h(Jbar_h),
+    Jbar_h = (sum_{e in h} J_e V_e) / V_h
+
+The deviatoric part lives on every P1 tet (one quadrature point is exact: F is constant per tet). The
+volumetric part sees only the mean dilatation ``Jbar`` of a *patch* of tets (Nagtegaal-Parks-Rice mean
+dilatation, as in the Q1/P0 hexahedron): on the grid mesher's output a patch is the six Kuhn tets of one
+hexahedral cell, so there is one volume constraint per cell (about one per node) instead of one per tet
+(about six per node), which is what locks plain P1 tets as ``nu -> 0.5``. ``volumetric="element"`` makes
+every tet its own patch (plain P1, locks) for comparison. Evidence: ``benchmarks/bench_locking.py``.
+
+All F-dependent quantities are computed once per tet (``F``, ``J``, ``F^-T``, the spatial gradients
+``h_a = F^-T grad N_a``) and the 12 x 12 tet tangents are built from outer products of those, never per
+pair of basis functions. Only the upper triangle is formed, and it is scattered into a fixed CSR pattern
+through index maps built once in ``__init__`` (``np.bincount``), so every Newton step of every phantom
+reuses the pattern (and PARDISO's symbolic factorization).
+
+Tangent per tet, with ``g_a`` reference gradients, ``f_a = F g_a``, ``h_a = F^-T g_a``, ``c = V mu J^-2/3``::
+
+    K_ai,bk = c [d_ik g_a.g_b - 2/3 (q_ai h_bk + h_ai q_bk) + I1/3 h_bi h_ak] + U'(Jbar) v_e (h_ai h_bk - h_bi h_ak)
+    q = f - I1/6 h,  v_e = J V
+
+plus, per patch, the rank-one block ``U''(Jbar) / V_h  gbar gbar^T`` with ``gbar = sum_e v_e h`` (the
+derivative of the patch volume).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..mesh.tetmesh import TetMesh
+from .materials import Materials
+
+log = logging.getLogger(__name__)
+
+VOLUMETRIC = ("patch", "element")
+
+
+def reference_gradients(nodes: np.ndarray, tets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """P1 shape-function gradients and volumes.
+
+    Returns
+    -------
+    grad : ndarray, shape (M, 4, 3)
+        ``grad[e, a]`` is the (constant) gradient of the hat function of local node ``a`` (1/mm).
+    vol : ndarray, shape (M,)
+        Signed tet volumes (mm^3).
+    """
+    x = nodes[tets]
+    D = (x[:, 1:] - x[:, :1]).transpose(0, 2, 1)  # columns are edge vectors
+    Dinv = np.linalg.inv(D)  # rows: gradients of N1..N3
+    grad = np.concatenate([-Dinv.sum(axis=1, keepdims=True), Dinv], axis=1)
+    vol = np.linalg.det(D) / 6.0
+    return grad, vol
+
+
+def dilatation_patches(mesh: TetMesh, volumetric: str = "patch") -> np.ndarray:
+    """Patch index of every tet, shape ``(M,)``; patches never mix regions.
+
+    ``"patch"``: on a tensor-product node set (the grid mesher) the hexahedral cell holding each tet's
+    centroid; on other meshes (tetwild) the cell of a virtual grid with about six tets per cell, split by
+    region (a heuristic: the grid mesher is the verified path). ``"element"``: every tet alone.
+    """
+    M = mesh.n_tets
+    if volumetric == "element":
+        return np.arange(M)
+    nodes = mesh.nodes_mm
+    cent = nodes[mesh.tets].mean(axis=1)
+    axes = [np.unique(np.round(nodes[:, i], 9)) for i in range(3)]
+    if np.prod([len(a) for a in axes]) == mesh.n_nodes:
+        edges = axes  # tensor grid: cells are exactly the hexahedra
+    else:
+        lo, hi = nodes.min(axis=0), nodes.max(axis=0)
+        step = (6.0 * np.abs(mesh.tet_volumes_mm3()).mean()) ** (1.0 / 3.0)
+        edges = [np.linspace(lo[i], hi[i], max(int(np.ceil((hi[i] - lo[i]) / step)), 1) + 1) for i in range(3)]
+    cell = np.zeros(M, dtype=np.int64)
+    for i in range(3):
+        k = np.clip(np.searchsorted(edges[i], cent[:, i]) - 1, 0, len(edges[i]) - 2)
+        cell = cell * (len(edges[i]) - 1) + k
+    key = cell * 256 + mesh.region.astype(np.int64)
+    _, patch = np.unique(key, return_inverse=True)
+    return patch.ravel()
+
+
+def _upper_pairs(n: int) -> tuple[np.ndarray, np.ndarray]:
+    i, j = np.triu_indices(n)
+    return i, j
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """State of the stack at one displacement field.
+
+    Attributes
+    ----------
+    energy_Nmm
+        Stored energy (N mm); ``inf`` if any tet or patch is inverted.
+    residual_N
+        Internal nodal forces ``dPi/du``, shape ``(3N,)`` (N), interleaved x, y, z per node.
+    data
+        Tangent values on :attr:`NeoHookeanOperator.indices` (upper CSR), or None.
+    min_J, min_Jbar
+        Smallest ``det F`` over tets and smallest mean dilatation over patches.
+    """
+
+    energy_Nmm: float
+    residual_N: np.ndarray | None
+    data: np.ndarray | None
+    min_J: float
+    min_Jbar: float
+
+    @property
+    def inverted(self) -> bool:
+        return not (self.min_J > 0 and self.min_Jbar > 0)
+
+
+class NeoHookeanOperator:
+    """Energy, residual and tangent of a labelled mesh with given materials (expensive state, built once).
+
+    Parameters
+    ----------
+    mesh
+        The labelled tet mesh (mm).
+    materials
+        Neo-Hookean parameters per region.
+    volumetric
+        ``"patch"`` (mean dilatation per hexahedral cell, default) or ``"element"`` (plain P1).
+    """
+
+    def __init__(self, mesh: TetMesh, materials: Materials, volumetric: str = "patch"):
+        if volumetric not in VOLUMETRIC:
+            raise ValueError(f"volumetric: expected one of {VOLUMETRIC}, got {volumetric!r}")
+        self.volumetric = volumetric
+        self.n_nodes = mesh.n_nodes
+        self.n_dofs = 3 * mesh.n_nodes
+        patch = dilatation_patches(mesh, volumetric)
+        # Work on tets sorted by patch, so per-patch sums are contiguous and cache friendly.
+        self.order = np.argsort(patch, kind="stable")
+        self.patch = patch[self.order]
+        self.tets = mesh.tets[self.order]
+        self.grad, self.vol = reference_gradients(mesh.nodes_mm, self.tets)
+        if np.any(self.vol <= 0):
+            raise ValueError("mesh: every tet must be positively oriented with positive volume")
+        mu, kappa_tet = materials.moduli_MPa(mesh.region[self.order])
+        self.mu = mu
+        P = int(self.patch.max()) + 1
+        self.n_patches = P
+        self.patch_vol = np.bincount(self.patch, self.vol, minlength=P)
+        self.patch_kappa = np.bincount(self.patch, kappa_tet * self.vol, minlength=P) / self.patch_vol
+        self._build_patch_nodes(P)
+        self._build_pattern()
+        M = mesh.n_tets
+        self._tet_dofs = (3 * self.tets[:, :, None] + np.arange(3)).reshape(M, 12)
+        G = np.einsum("eaj,ebj->eab", self.grad, self.grad).reshape(M, 16)
+        la, li, lb, lk = self._tet_pair_parts
+        self._G_delta = G[:, 4 * la + lb] * (li == lk)
+        log.debug("operator: %d tets, %d patches (max %d nodes), %d dofs, %d upper nonzeros",
+                  M, P, self._kmax, self.n_dofs, self.nnz)
+
+    # -- one-off structure --------------------------------------------------------------------------
+    def _build_patch_nodes(self, P: int) -> None:
+        M = len(self.tets)
+        key = np.repeat(self.patch, 4) * self.n_nodes + self.tets.ravel()
+        ukey, inv = np.unique(key, return_inverse=True)
+        upatch = ukey // self.n_nodes
+        counts = np.bincount(upatch, minlength=P)
+        kmax = int(counts.max())
+        start = np.r_[0, np.cumsum(counts)[:-1]]
+        slot = np.arange(len(ukey)) - start[upatch]
+        self.patch_nodes = np.full((P, kmax), -1, dtype=np.int64)
+        self.patch_nodes[upatch, slot] = ukey % self.n_nodes
+        self._tet_slot = slot[inv.ravel()].reshape(M, 4)  # local position in the patch of each tet node
+        self._kmax = kmax
+
+    def _build_pattern(self) -> None:
+        P = self.n_patches
+        n, nk = self.n_dofs, 3 * self._kmax
+        # patch blocks: upper pairs of the 3k local dofs; every tet pair lies inside its patch's block
+        qi, qj = _upper_pairs(nk)
+        self._patch_pairs = (qi, qj)
+        pdof = np.where(self.patch_nodes[:, :, None] >= 0, 3 * self.patch_nodes[:, :, None] + np.arange(3), -1)
+        pdof = pdof.reshape(P, nk)
+        rows_p, cols_p = pdof[:, qi], pdof[:, qj]
+        valid = (rows_p >= 0) & (cols_p >= 0)
+        key_p = np.minimum(rows_p, cols_p) * n + np.maximum(rows_p, cols_p)
+        keys, inv = np.unique(key_p[valid], return_inverse=True)
+        self.nnz = len(keys)
+        pmap = np.full(key_p.shape, self.nnz, dtype=np.int32)  # padding goes to a spare slot
+        pmap[valid] = inv.ravel()
+        self._patch_map = pmap
+        rows, cols = keys // n, keys % n
+        self.indptr = np.r_[0, np.cumsum(np.bincount(rows, minlength=n))].astype(np.int64)
+        self.indices = cols.astype(np.int64)
+        self.rows = rows
+        self.diag_pos = np.searchsorted(keys, np.arange(n) * (n + 1))
+        # tet blocks: 78 upper pairs of the 12 local dofs, mapped to their slot in the patch block
+        pi, pj = _upper_pairs(12)
+        la, li, lb, lk = pi // 3, pi % 3, pj // 3, pj % 3
+        self._tet_pair_parts = (la, li, lb, lk)
+        self._tet_pairs = (pi, pj, 3 * lb + li, 3 * la + lk)
+        r = 3 * self._tet_slot[:, la] + li
+        c = 3 * self._tet_slot[:, lb] + lk
+        r, c = np.minimum(r, c), np.maximum(r, c)
+        local = r * nk - r * (r - 1) // 2 + (c - r)
+        self._tet_to_patch = (self.patch[:, None] * len(qi) + local).astype(np.int64)
+
+    # -- kinematics ---------------------------------------------------------------------------------
+    def deformation_gradient(self, u: np.ndarray) -> np.ndarray:
+        """``F`` of every tet in the operator's (patch-sorted) order, shape ``(M, 3, 3)``; ``u`` is (N, 3) mm."""
+        F = np.matmul(u[self.tets].transpose(0, 2, 1), self.grad)
+        F[:, 0, 0] += 1.0
+        F[:, 1, 1] += 1.0
+        F[:, 2, 2] += 1.0
+        return F
+
+    @staticmethod
+    def _det_cof(F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``det F`` and the cofactor matrix ``d det / dF = J F^-T``, explicitly (no LAPACK per tet)."""
+        a, b, c = F[:, 0], F[:, 1], F[:, 2]
+        cof = np.empty_like(F)
+        cof[:, 0, 0] = b[:, 1] * c[:, 2] - b[:, 2] * c[:, 1]
+        cof[:, 0, 1] = b[:, 2] * c[:, 0] - b[:, 0] * c[:, 2]
+        cof[:, 0, 2] = b[:, 0] * c[:, 1] - b[:, 1] * c[:, 0]
+        cof[:, 1, 0] = c[:, 1] * a[:, 2] - c[:, 2] * a[:, 1]
+        cof[:, 1, 1] = c[:, 2] * a[:, 0] - c[:, 0] * a[:, 2]
+        cof[:, 1, 2] = c[:, 0] * a[:, 1] - c[:, 1] * a[:, 0]
+        cof[:, 2, 0] = a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1]
+        cof[:, 2, 1] = a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2]
+        cof[:, 2, 2] = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
+        J = a[:, 0] * cof[:, 0, 0] + a[:, 1] * cof[:, 0, 1] + a[:, 2] * cof[:, 0, 2]
+        return J, cof
+
+    def jacobians(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``det F`` per tet in *mesh* order, shape ``(M,)``, and mean dilatation per patch, shape ``(P,)``."""
+        J, _ = self._det_cof(self.deformation_gradient(u))
+        Jbar = np.bincount(self.patch, J * self.vol, minlength=self.n_patches) / self.patch_vol
+        out = np.empty_like(J)
+        out[self.order] = J
+        return out, Jbar
+
+    # -- energy, residual, tangent ------------------------------------------------------------------
+    def evaluate(self, u: np.ndarray, residual: bool = True, tangent: bool = True) -> Evaluation:
+        """Energy and, unless inverted, residual and tangent at displacement ``u`` (N, 3) in mm."""
+        F = self.deformation_gradient(u)
+        J, cof = self._det_cof(F)
+        v_e = J * self.vol
+        Jbar = np.bincount(self.patch, v_e, minlength=self.n_patches) / self.patch_vol
+        min_J, min_Jbar = float(J.min()), float(Jbar.min())
+        if not (min_J > 0 and min_Jbar > 0):
+            return Evaluation(np.inf, None, None, min_J, min_Jbar)
+        I1 = np.einsum("eij,eij->e", F, F)
+        Jm23 = J ** (-2.0 / 3.0)
+        kap = self.patch_kappa
+        energy = float(np.dot(self.vol * self.mu, 0.5 * (Jm23 * I1 - 3.0))
+                       + np.dot(self.patch_vol * kap, 0.25 * (Jbar ** 2 - 1.0 - 2.0 * np.log(Jbar))))
+        if not residual:
+            return Evaluation(energy, None, None, min_J, min_Jbar)
+        cof /= J[:, None, None]  # now F^-T
+        f = np.matmul(self.grad, F.transpose(0, 2, 1))  # f_a = F g_a
+        h = np.matmul(self.grad, cof.transpose(0, 2, 1))  # h_a = F^-T g_a: spatial hat-function gradients
+        c = self.vol * self.mu * Jm23
+        Up = 0.5 * kap * (Jbar - 1.0 / Jbar)
+        w = Up[self.patch] * v_e  # U'(Jbar) v_e per tet
+        q = f - (I1 / 6.0)[:, None, None] * h
+        r_tet = c[:, None, None] * (q - (I1 / 6.0)[:, None, None] * h) + w[:, None, None] * h
+        R = np.bincount(self._tet_dofs.ravel(), r_tet.ravel(), minlength=self.n_dofs)
+        if not tangent:
+            return Evaluation(energy, R, None, min_J, min_Jbar)
+        M = len(self.tets)
+        h12 = h.reshape(M, 12)
+        q12 = q.reshape(M, 12)
+        pI, pJ, pS, pT = self._tet_pairs
+        hI, hJ = np.take(h12, pI, axis=1), np.take(h12, pJ, axis=1)
+        vals = np.take(q12, pI, axis=1)
+        vals *= hJ
+        tmp = np.take(q12, pJ, axis=1)
+        tmp *= hI
+        vals += tmp
+        vals *= -2.0 / 3.0
+        vals += self._G_delta
+        vals *= c[:, None]
+        np.multiply(hI, hJ, out=hI)
+        hI *= w[:, None]
+        vals += hI
+        np.multiply(np.take(h12, pS, axis=1), np.take(h12, pT, axis=1), out=tmp)
+        tmp *= (c * I1 / 3.0 - w)[:, None]
+        vals += tmp
+        nq = len(self._patch_pairs[0])
+        block = np.bincount(self._tet_to_patch.ravel(), vals.ravel(), minlength=self.n_patches * nq)
+        block = block.reshape(self.n_patches, nq)
+        # patch rank-one blocks: U''(Jbar) / V_h * gbar gbar^T, gbar = d(patch volume)/du
+        k = self._kmax
+        gkey = (self.patch[:, None] * k + self._tet_slot).ravel()
+        vh = (v_e[:, None, None] * h).reshape(-1, 3)
+        gbar = np.empty((self.n_patches * k, 3))
+        for i in range(3):
+            gbar[:, i] = np.bincount(gkey, vh[:, i], minlength=self.n_patches * k)
+        gbar = gbar.reshape(self.n_patches, 3 * k)
+        qi, qj = self._patch_pairs
+        Upp = 0.5 * kap * (1.0 + 1.0 / Jbar ** 2)
+        gq = np.take(gbar, qi, axis=1)
+        gq *= np.take(gbar, qj, axis=1)
+        gq *= (Upp / self.patch_vol)[:, None]
+        block += gq
+        data = np.bincount(self._patch_map.ravel(), block.ravel(), minlength=self.nnz + 1)[: self.nnz]
+        return Evaluation(energy, R, data, min_J, min_Jbar)
+
+    def principal_stretches(self, u: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
+        """Principal stretches (ascending) of the tets selected by ``mask`` (mesh order), shape ``(m, 3)``."""
+        F = self.deformation_gradient(u)
+        if mask is not None:
+            F = F[mask[self.order]]
+        C = np.einsum("eki,ekj->eij", F, F)
+        return np.sqrt(np.clip(np.linalg.eigvalsh(C), 0.0, None))

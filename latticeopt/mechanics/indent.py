@@ -1,0 +1,503 @@
+"""Large-deformation indentation of the sensor stack: load stepping, Newton, step halving.
+
+>>> from latticeopt import LatticeDesign, mesh_design
+>>> from latticeopt.mechanics import indent
+>>> from latticeopt.touches import Touch
+>>> res = indent(mesh_design(LatticeDesign()), [Touch(50, 50, 8.75, 4.0)])  # doctest: +SKIP
+>>> res.forces_N, res.deformed_mesh  # doctest: +SKIP
+
+Bottom face fixed, sides free, the indenters of :mod:`latticeopt.mechanics.indenters` on the top. All touches
+are driven together: at load factor ``lam`` touch ``i`` is at depth ``lam * depth_i`` (load steps of at most
+``max_step_mm`` for the deepest touch). Each load step applies the prescribed displacement increment through
+the tangent (so the first iterate is the linearised response, not a crushed top layer) and then iterates on
+the residual: full Newton (``method="newton"``, a factorization per iteration, quadratic) or, by default,
+limited-memory BFGS on top of the last tangent factorization with a refactorization whenever progress
+stalls or a quasi-Newton direction is rejected (``method="bfgs"``: about a quarter of the factorizations
+for the same final state, see ``benchmarks/bench_indent.py``). A backtracking line search never accepts
+``det F <= 0`` (nor a patch mean dilatation <= 0) and demands a decrease of energy or residual. A step has
+converged when the residual on the free DOFs is below ``rtol`` times the reaction norm (or ``atol_N``);
+intermediate steps use the looser ``step_rtol`` (only the final state is reported). A failed step is
+halved; below ``min_step_mm`` a :class:`ConvergenceError` names the step, the depth reached, the residual
+and whether elements inverted.
+
+Dirichlet DOFs are eliminated symmetrically inside a fixed sparsity pattern (their rows and columns zeroed,
+diagonal kept), so the pattern, and PARDISO's symbolic factorization, is the same for every Newton step,
+every load step and every phantom of a mesh: :class:`IndentationSolver` holds it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+
+from .. import _validate as v
+from ..design import REGION_IDS
+from ..errors import ConvergenceError, ParameterError
+from ..linalg import BACKENDS, SymmetricSolver
+from ..mesh.tetmesh import TetMesh
+from ..touches import Touch, check_touches
+from .assembly import VOLUMETRIC, Evaluation, NeoHookeanOperator
+from .indenters import IN_PLANE, INDENTERS, Constraints
+from .materials import Materials
+
+log = logging.getLogger(__name__)
+
+PREDICTORS = ("secant", "tangent")
+METHODS = ("bfgs", "newton")
+
+
+@dataclass(frozen=True)
+class IndentSettings:
+    """How to indent.
+
+    Parameters
+    ----------
+    materials
+        Neo-Hookean parameters per region.
+    indenter
+        ``"flat"`` (flat-ended punch, default) or ``"sphere"`` (hemispherical tip of the touch radius).
+    in_plane
+        Flat punch only: ``"bonded"`` (no slip, default) or ``"frictionless"``. The sphere is frictionless.
+    volumetric
+        ``"patch"`` (mean dilatation per hexahedral cell, locking-free, default) or ``"element"`` (plain P1).
+    max_step_mm
+        Largest depth increment of the deepest touch per load step (mm).
+    min_step_mm
+        Step halving gives up below this increment (mm).
+    max_newton
+        Newton iterations per load step before the step counts as failed.
+    rtol
+        Converged when ``|R_free| <= rtol * |R_constrained|`` ...
+    atol_N
+        ... or ``|R_free| <= atol_N`` (N).
+    step_rtol
+        The looser ``rtol`` of intermediate load steps (only the final state must be accurate; each step's
+        start is re-equilibrated anyway).
+    predictor
+        Start of each load step after the first: ``"tangent"`` (apply the increment through the tangent,
+        default) or ``"secant"`` (extrapolate the last two converged states; measured worse here).
+    method
+        ``"bfgs"`` (default): factorize the tangent at the start of each load step and iterate with
+        limited-memory BFGS updates on top of it, refactorizing when progress stalls (superlinear, each
+        iteration one back-substitution). ``"newton"``: full Newton, a new factorization every iteration
+        (quadratic). Measured in ``benchmarks/bench_indent.py``.
+    max_bfgs
+        BFGS memory, and iterations on one factorization before a refactorization.
+    backend
+        Sparse solver: ``"auto"`` (PARDISO if installed), ``"pardiso"`` or ``"scipy"``.
+    """
+
+    materials: Materials = field(default_factory=Materials)
+    indenter: str = "flat"
+    in_plane: str = "bonded"
+    volumetric: str = "patch"
+    max_step_mm: float = 1.0
+    min_step_mm: float = 0.01
+    max_newton: int = 12
+    rtol: float = 1e-6
+    atol_N: float = 1e-10
+    step_rtol: float = 1e-3
+    method: str = "bfgs"
+    max_bfgs: int = 8
+    predictor: str = "tangent"
+    backend: str = "auto"
+
+    def __post_init__(self) -> None:
+        set_ = object.__setattr__
+        if not isinstance(self.materials, Materials):
+            raise ParameterError("materials", "a latticeopt.mechanics.Materials", self.materials)
+        set_(self, "indenter", v.choice("indenter", self.indenter, INDENTERS))
+        set_(self, "in_plane", v.choice("in_plane", self.in_plane, IN_PLANE))
+        set_(self, "volumetric", v.choice("volumetric", self.volumetric, VOLUMETRIC))
+        set_(self, "backend", v.choice("backend", self.backend, BACKENDS))
+        set_(self, "max_step_mm", v.real("max_step_mm", self.max_step_mm, lo=0, lo_open=True))
+        set_(self, "min_step_mm", v.real("min_step_mm", self.min_step_mm, lo=0, lo_open=True, hi=self.max_step_mm))
+        set_(self, "max_newton", v.integer("max_newton", self.max_newton, lo=1, hi=200))
+        set_(self, "rtol", v.real("rtol", self.rtol, lo=0, lo_open=True, hi=1e-1))
+        set_(self, "atol_N", v.real("atol_N", self.atol_N, lo=0))
+        set_(self, "step_rtol", v.real("step_rtol", self.step_rtol, lo=0, lo_open=True, hi=1e-1))
+        set_(self, "predictor", v.choice("predictor", self.predictor, PREDICTORS))
+        set_(self, "method", v.choice("method", self.method, METHODS))
+        set_(self, "max_bfgs", v.integer("max_bfgs", self.max_bfgs, lo=1, hi=100))
+
+    def as_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+@dataclass(frozen=True, eq=False)
+class IndentationResult:
+    """Outcome of one indentation (mm, N).
+
+    Attributes
+    ----------
+    touches
+        The validated touches.
+    displacement_mm
+        Nodal displacement, shape ``(N, 3)``.
+    deformed_mesh
+        ``mesh.with_nodes(nodes + u)``: region labels and facet sets (electrodes) intact.
+    forces_N
+        Force of every indenter (N, positive pushing down), shape ``(n_touches,)``.
+    newton_steps
+        Linear solves (Newton iterations) over all load steps.
+    load_steps
+        Accepted load steps.
+    step_halvings
+        Load steps that failed and were retried at half the increment.
+    max_hydrogel_stretch, min_hydrogel_stretch
+        Largest / smallest principal stretch over hydrogel tets (NaN if the mesh has none).
+    min_det_F
+        Smallest ``det F`` over all tets (> 0: no tet inverted).
+    residual_norms
+        Free-DOF residual norm (N) at every Newton iterate, one tuple per accepted load step.
+    timings
+        Seconds: ``assembly`` (incl. line-search evaluations), ``factorization``, ``solve``, ``other``, ``total``.
+    solver
+        Backend, DOFs, nonzeros, factorizations, settings summary.
+    """
+
+    touches: tuple
+    displacement_mm: np.ndarray
+    deformed_mesh: TetMesh
+    forces_N: np.ndarray
+    newton_steps: int
+    load_steps: int
+    step_halvings: int
+    max_hydrogel_stretch: float
+    min_hydrogel_stretch: float
+    min_det_F: float
+    residual_norms: tuple
+    timings: dict
+    solver: dict
+
+    def summary(self) -> dict:
+        """JSON-ready scalars (no fields)."""
+        return {"touches": [t.as_dict() for t in self.touches], "forces_N": self.forces_N.tolist(),
+                "newton_steps": self.newton_steps, "load_steps": self.load_steps,
+                "step_halvings": self.step_halvings, "max_hydrogel_stretch": self.max_hydrogel_stretch,
+                "min_hydrogel_stretch": self.min_hydrogel_stretch, "min_det_F": self.min_det_F,
+                "max_displacement_mm": float(np.abs(self.displacement_mm).max()),
+                "seconds": self.timings["total"], "timings": dict(self.timings), "solver": dict(self.solver)}
+
+    def to_vtu(self, path) -> None:
+        """Write the deformed mesh with ``displacement_mm`` (points) and ``det_F`` (tets) for ParaView."""
+        self.deformed_mesh.to_vtu(path, point_data={"displacement_mm": self.displacement_mm},
+                                  cell_data={"det_F": self.det_F()})
+
+    def det_F(self) -> np.ndarray:
+        """Volume ratio ``det F`` of every tet, shape ``(M,)``."""
+        ref = self.deformed_mesh.with_nodes(self.deformed_mesh.nodes_mm - self.displacement_mm)
+        return self.deformed_mesh.tet_volumes_mm3() / ref.tet_volumes_mm3()
+
+
+class _StepFailed(Exception):
+    def __init__(self, reason: str, residual: float, min_J: float):
+        super().__init__(reason)
+        self.reason, self.residual, self.min_J = reason, residual, min_J
+
+
+class IndentationSolver:
+    """Indentation of one mesh: operator, sparsity pattern and symbolic factorization built once.
+
+    Build one per mesh (design) and call :meth:`solve` for every phantom; :func:`indent` is the one-shot
+    wrapper.
+
+    Parameters
+    ----------
+    mesh
+        Labelled tet mesh with ``top`` and ``bottom`` facet sets (mm).
+    settings
+        Materials, indenter and Newton settings.
+    """
+
+    def __init__(self, mesh: TetMesh, settings: IndentSettings | None = None):
+        t0 = time.perf_counter()
+        self.mesh = mesh
+        self.settings = settings = settings or IndentSettings()
+        for name in ("top", "bottom"):
+            if name not in mesh.facets or len(mesh.facets[name]) == 0:
+                raise ValueError(f"mesh: expected a non-empty facet set {name!r}")
+        self.op = NeoHookeanOperator(mesh, settings.materials, settings.volumetric)
+        self.top_nodes = np.unique(mesh.facets["top"])
+        self.bottom_nodes = np.unique(mesh.facets["bottom"])
+        lo, hi = mesh.nodes_mm.min(axis=0), mesh.nodes_mm.max(axis=0)
+        self.x_range, self.y_range = (float(lo[0]), float(hi[0])), (float(lo[1]), float(hi[1]))
+        self.thickness_mm = float(mesh.nodes_mm[self.top_nodes, 2].mean() - mesh.nodes_mm[self.bottom_nodes, 2].mean())
+        self._gel = mesh.region == REGION_IDS["hydrogel"]
+        n = self.op.n_dofs
+        self._ev0 = self.op.evaluate(np.zeros((mesh.n_nodes, 3)))
+        isD = np.zeros(n, dtype=bool)
+        isD[(3 * self.bottom_nodes[:, None] + np.arange(3)).ravel()] = True
+        # symbolic analysis only: every phantom factorizes its own tangent (same pattern)
+        self.linear = SymmetricSolver(self._matrix(self._ev0.data, isD), positive_definite=False,
+                                      backend=settings.backend, factorize=False)
+        self.setup_seconds = time.perf_counter() - t0
+        log.info("indentation solver: %d dofs, %d nonzeros, %s, set up in %.2f s", n, self.op.nnz,
+                 self.linear.backend, self.setup_seconds)
+
+    # -- linear algebra ------------------------------------------------------------------------------
+    def _matrix(self, data: np.ndarray, isD: np.ndarray) -> sp.csr_matrix:
+        """Tangent with constrained rows and columns zeroed (diagonal kept): same pattern every time."""
+        op = self.op
+        out = data.copy()
+        out[isD[op.rows] | isD[op.indices]] = 0.0
+        dpos = op.diag_pos[isD]
+        out[dpos] = data[dpos]
+        return sp.csr_matrix((out, op.indices, op.indptr), shape=(op.n_dofs, op.n_dofs))
+
+    def _symmetric_matvec(self, data: np.ndarray, x: np.ndarray) -> np.ndarray:
+        op = self.op
+        U = sp.csr_matrix((data, op.indices, op.indptr), shape=(op.n_dofs, op.n_dofs))
+        return U @ x + U.T @ x - data[op.diag_pos] * x
+
+    # -- one phantom ----------------------------------------------------------------------------------
+    def solve(self, touches) -> IndentationResult:
+        """Indent with ``touches`` (Touch objects or ``(x, y, r, d)`` sequences, mm); see the module docstring."""
+        t_start = time.perf_counter()
+        s = self.settings
+        touches = check_touches(touches, self.x_range, self.y_range, self.thickness_mm)
+        cons = Constraints(self.mesh.nodes_mm, self.top_nodes, self.bottom_nodes, touches, s.indenter, s.in_plane)
+        self._clock = {"assembly": 0.0, "factorization": 0.0, "solve": 0.0}
+        self._n_solves = self._n_factor = 0
+        self._factor_isD = None  # Dirichlet set of the current factorization (none yet for this phantom)
+        u = np.zeros((self.mesh.n_nodes, 3))
+        ev = self._ev0
+        d_max = max(t.depth_mm for t in touches)
+        lam, history, halvings = 0.0, [], 0
+        dlam_max = 1.0 if d_max == 0 else min(1.0, s.max_step_mm / d_max)
+        dlam = dlam_max
+        u_prev, lam_prev = None, 0.0
+        while lam < 1.0 and d_max > 0:
+            lam_new = min(1.0, lam + dlam)
+            active = [a.copy() for a in cons.active]
+            u_start, ev_start = self._predict(u, ev, u_prev, lam_prev, lam, lam_new)
+            try:
+                u_new, ev_new, norms = self._newton(u_start, ev_start, cons, lam_new, final=lam_new >= 1.0)
+            except _StepFailed as exc:
+                halvings += 1
+                self._factor_isD = None  # that factorization belongs to a rejected state
+                cons.active = active
+                log.info("load step to %.3f mm failed (%s, residual %.3g N); halving", lam_new * d_max,
+                         exc.reason, exc.residual)
+                dlam *= 0.5
+                if dlam * d_max < s.min_step_mm:
+                    inv = f"; an element inverted (min det F = {exc.min_J:.3g})" if exc.min_J <= 0 else ""
+                    raise ConvergenceError(
+                        f"indentation did not converge: load step {len(history) + 1} from depth "
+                        f"{lam * d_max:.4g} mm towards {lam_new * d_max:.4g} mm of {d_max:.4g} mm failed after "
+                        f"{halvings} step halvings ({exc.reason}; residual {exc.residual:.3g} N{inv})") from None
+                continue
+            u_prev, lam_prev = u, lam
+            u, ev, lam = u_new, ev_new, lam_new
+            history.append(tuple(norms))
+            if len(norms) <= 4:
+                dlam = min(dlam * 2.0, dlam_max)
+        forces = cons.forces_N(ev.residual_N)
+        J, _ = self.op.jacobians(u)
+        if self._gel.any():
+            st = self.op.principal_stretches(u, self._gel)
+            smax, smin = float(st.max()), float(st.min())
+        else:
+            smax = smin = float("nan")
+        total = time.perf_counter() - t_start
+        clock = dict(self._clock)
+        clock["other"] = total - sum(clock.values())
+        clock["total"] = total
+        clock["setup"] = self.setup_seconds
+        stats = {"backend": self.linear.backend, "n_dofs": self.op.n_dofs, "nnz_upper": self.op.nnz,
+                 "n_factorizations": self._n_factor, "method": s.method, "volumetric": s.volumetric,
+                 "indenter": s.indenter,
+                 "in_plane": s.in_plane, "contact_nodes": [int(len(n)) for n in cons.contact_nodes()]}
+        return IndentationResult(
+            touches=touches, displacement_mm=u, deformed_mesh=self.mesh.with_nodes(self.mesh.nodes_mm + u),
+            forces_N=forces, newton_steps=self._n_solves, load_steps=len(history), step_halvings=halvings,
+            max_hydrogel_stretch=smax, min_hydrogel_stretch=smin, min_det_F=float(J.min()),
+            residual_norms=tuple(history), timings=clock, solver=stats)
+
+    def _evaluate(self, u: np.ndarray, tangent: bool = True) -> Evaluation:
+        t = time.perf_counter()
+        ev = self.op.evaluate(u, residual=True, tangent=tangent)
+        self._clock["assembly"] += time.perf_counter() - t
+        return ev
+
+    def _predict(self, u, ev, u_prev, lam_prev, lam, lam_new):
+        """Start of a load step: secant extrapolation of the last two converged states (the prescribed
+        displacements are linear in ``lam``, so it meets them exactly for the flat punch). The first step, or
+        an extrapolation that would invert a tet, starts from ``u`` and lets Newton apply the increment."""
+        if self.settings.predictor == "secant" and lam > 0:
+            base, base_lam = (u_prev, lam_prev) if u_prev is not None else (np.zeros_like(u), 0.0)
+            trial = u + (lam_new - lam) / (lam - base_lam) * (u - base)
+            ev_trial = self._evaluate(trial)
+            if not ev_trial.inverted:
+                return trial, ev_trial
+        return u, ev
+
+    def _newton(self, u: np.ndarray, ev: Evaluation, cons: Constraints, lam: float, final: bool = True):
+        """Solve one load step from ``u`` (with its evaluation ``ev``) to load factor ``lam``.
+
+        ``method="newton"``: a fresh tangent factorization every iteration. ``method="bfgs"``: the
+        increment (prescribed jump) iteration factorizes the tangent; the following iterations use
+        limited-memory BFGS updates on top of that factorization (one back-substitution and one residual
+        evaluation each), refactorizing only when progress stalls.
+        """
+        s = self.settings
+        rtol = s.rtol if final else max(s.rtol, s.step_rtol)
+        n = self.op.n_dofs
+        cons.start_step(u, lam)
+        norms: list[float] = []
+        memory: list = []
+        since = 0  # BFGS iterations since the last factorization
+        refactor_next = False
+        max_it = s.max_newton if s.method == "newton" else 3 * s.max_newton
+        for it in range(max_it + 1):
+            D, vals = cons.dirichlet(lam)
+            isD = np.zeros(n, dtype=bool)
+            isD[D] = True
+            # a factorization for this Dirichlet set exists (the sphere's contact set may have changed)
+            fresh = self._factor_isD is not None and np.array_equal(isD, self._factor_isD)
+            jump = vals - u.ravel()[D]
+            R = ev.residual_N
+            r_free = float(np.linalg.norm(R[~isD]))
+            norms.append(r_free)
+            if not np.isfinite(r_free):
+                raise _StepFailed("non-finite residual", r_free, ev.min_J)
+            tol = max(rtol * float(np.linalg.norm(R[isD])), s.atol_N)
+            if not np.any(jump) and r_free <= tol:
+                if ev.data is None and (not final or s.indenter == "sphere"):
+                    ev = self._evaluate(u, tangent=True)  # the next step (or the contact update) needs it
+                if s.indenter == "flat" or not cons.update_active(u, R, lam, ev.data[self.op.diag_pos]):
+                    return u, ev, norms
+                continue  # the sphere's contact set changed: solve again
+            if it == max_it:
+                raise _StepFailed(f"no convergence in {max_it} iterations", r_free, ev.min_J)
+            if len(norms) > 3 and r_free > 1e3 * min(norms[1:]):
+                raise _StepFailed("residual diverging", r_free, ev.min_J)
+            stalled = since >= s.max_bfgs or (since >= 2 and r_free > 0.5 * norms[-3])
+            exact = s.method == "newton" or not fresh or stalled or refactor_next
+            if exact:
+                if ev.data is None:
+                    ev = self._evaluate(u, tangent=True)
+                du = self._linear_solve(ev, isD, D, jump, R)
+                self._factor_isD = isD
+                memory, since, refactor_next = [], 0, False
+            elif np.any(jump):
+                # the load increment through the previous factorization (one back-substitution); the tangent
+                # changes most over it, so the next iteration refactorizes
+                if ev.data is None:
+                    ev = self._evaluate(u, tangent=True)
+                du = self._linear_solve(ev, isD, D, jump, R, refactor=False)
+                memory, since, refactor_next = [], 0, True
+            else:
+                du = -self._bfgs_direction(np.where(isD, 0.0, R), memory)
+                du[isD] = 0.0
+                since += 1
+            try:
+                ev_new, u_new = self._line_search(u, du, ev, np.any(jump), isD, tangent=s.method == "newton")
+            except _StepFailed:
+                if exact:
+                    raise
+                refactor_next = True  # a quasi-Newton direction failed: retry with the exact tangent
+                continue
+            if s.method == "bfgs" and not np.any(jump):
+                sk = (u_new - u).ravel()
+                yk = np.where(isD, 0.0, ev_new.residual_N - R)
+                sy = float(sk @ yk)
+                if sy > 1e-300:
+                    memory.append((sk, yk, 1.0 / sy))
+                    del memory[: -s.max_bfgs]
+            u, ev = u_new, ev_new
+        raise AssertionError("unreachable")  # pragma: no cover
+
+    def _bfgs_direction(self, g: np.ndarray, memory: list) -> np.ndarray:
+        """Two-loop recursion: ``H g`` with ``H_0`` the factorized tangent's inverse."""
+        q = g.copy()
+        alphas = []
+        for sk, yk, rho in reversed(memory):
+            a = rho * float(sk @ q)
+            alphas.append(a)
+            q -= a * yk
+        t = time.perf_counter()
+        r = self.linear.solve(q).ravel()
+        self._clock["solve"] += time.perf_counter() - t
+        self._n_solves += 1
+        for (sk, yk, rho), a in zip(memory, reversed(alphas)):
+            b = rho * float(yk @ r)
+            r += (a - b) * sk
+        return r
+
+    def _linear_solve(self, ev: Evaluation, isD: np.ndarray, D: np.ndarray, jump: np.ndarray,
+                      R: np.ndarray, refactor: bool = True) -> np.ndarray:
+        """Newton increment: ``K du = -R`` on the free DOFs, ``du = jump`` on the constrained ones
+        (symmetric elimination; the factorization reuses the symbolic analysis)."""
+        rhs = -R.copy()
+        if np.any(jump):
+            lift = np.zeros(self.op.n_dofs)
+            lift[D] = jump
+            rhs -= self._symmetric_matvec(ev.data, lift)
+        rhs[D] = ev.data[self.op.diag_pos[D]] * jump
+        t = time.perf_counter()
+        if refactor:
+            self.linear.refactor(self._matrix(ev.data, isD))
+            self._n_factor += 1
+        t1 = time.perf_counter()
+        du = self.linear.solve(rhs).ravel()
+        self._clock["factorization"] += t1 - t
+        self._clock["solve"] += time.perf_counter() - t1
+        self._n_solves += 1
+        du[D] = jump  # exact, whatever the solver's rounding
+        return du
+
+    def _line_search(self, u: np.ndarray, du: np.ndarray, ev: Evaluation, has_jump: bool, isD: np.ndarray,
+                     tangent: bool):
+        """Backtrack until no tet inverts and (without a prescribed jump) energy or residual decreases."""
+        slope = float(ev.residual_N @ du)
+        r_old = float(np.linalg.norm(ev.residual_N[~isD]))
+        alpha, min_J = 1.0, np.inf
+        for k in range(12):
+            trial_u = u + alpha * du.reshape(u.shape)
+            trial = self._evaluate(trial_u, tangent=tangent and k == 0)
+            min_J = min(min_J, trial.min_J)
+            if not trial.inverted:
+                if has_jump:
+                    ok = True
+                else:
+                    armijo = trial.energy_Nmm <= ev.energy_Nmm + 1e-4 * alpha * min(slope, 0.0)
+                    ok = armijo or float(np.linalg.norm(trial.residual_N[~isD])) < r_old
+                if ok:
+                    if tangent and trial.data is None:
+                        trial = self._evaluate(trial_u, tangent=True)
+                    return trial, trial_u
+            alpha *= 0.5
+        raise _StepFailed("line search found no admissible step" + (" (elements invert)" if min_J <= 0 else ""),
+                          r_old, min_J)
+
+
+def indent(mesh: TetMesh, touches, settings: IndentSettings | None = None) -> IndentationResult:
+    """Indent ``mesh`` with ``touches`` (see :class:`IndentationSolver`; builds one and solves once).
+
+    Parameters
+    ----------
+    mesh
+        Labelled tet mesh (mm) with ``top`` and ``bottom`` facet sets.
+    touches
+        :class:`~latticeopt.touches.Touch` objects or ``(x, y, radius, depth)`` sequences (mm); checked
+        against the mesh's top surface and thickness before any solve.
+    settings
+        :class:`IndentSettings`; defaults to ``IndentSettings()``.
+
+    Returns
+    -------
+    IndentationResult
+    """
+    settings = settings or IndentSettings()
+    lo, hi = mesh.nodes_mm.min(axis=0), mesh.nodes_mm.max(axis=0)
+    check_touches(touches, (lo[0], hi[0]), (lo[1], hi[1]), float(hi[2] - lo[2]))  # fail before any setup
+    return IndentationSolver(mesh, settings).solve(touches)
+
+
+__all__ = ["IndentSettings", "IndentationResult", "IndentationSolver", "indent", "Touch"]

@@ -1,0 +1,125 @@
+"""Indentation behaviour: convergence, monotonicity, symmetry, superposition, outputs and bad input."""
+
+import numpy as np
+import pytest
+
+from latticeopt import LatticeDesign, MeshSettings, mesh_design
+from latticeopt.errors import ConvergenceError, ParameterError
+from latticeopt.mechanics import IndentationSolver, IndentSettings, indent
+from latticeopt.touches import Touch
+
+DESIGN = LatticeDesign(size_mm=50.0, width_mm=4.0, thickness_mm=3.0)
+
+
+@pytest.fixture(scope="module")
+def mesh():
+    return mesh_design(DESIGN, MeshSettings(size_mm=2.5), cache_dir=False)
+
+
+@pytest.fixture(scope="module")
+def solver(mesh):
+    return IndentationSolver(mesh, IndentSettings())
+
+
+def test_full_newton_converges_quadratically(mesh):
+    res = IndentationSolver(mesh, IndentSettings(method="newton", rtol=1e-10)).solve([(25, 25, 6.25, 1.0)])
+    r = np.array(res.residual_norms[-1][1:])  # after the prescribed-increment iteration
+    r = r[r > 1e-11]  # above round-off
+    assert len(r) >= 3
+    # order estimate p = log(r_k+1 / r_k) / log(r_k / r_k-1) of the last three iterates
+    p = np.log(r[-1] / r[-2]) / np.log(r[-2] / r[-3])
+    assert p > 1.7, r
+    assert r[-1] < 1e-3 * r[-3] ** 1.5 / r[0] ** 0.5 or r[-1] <= 1e-9
+
+
+def test_bfgs_and_newton_reach_the_same_state(mesh, solver):
+    touch = [(25, 25, 6.25, 1.5)]
+    a = solver.solve(touch)
+    b = IndentationSolver(mesh, IndentSettings(method="newton")).solve(touch)
+    assert a.forces_N[0] == pytest.approx(b.forces_N[0], rel=1e-5)
+    assert np.abs(a.displacement_mm - b.displacement_mm).max() < 1e-4
+    assert a.solver["n_factorizations"] < b.solver["n_factorizations"]
+
+
+def test_force_rises_monotonically_with_depth(solver):
+    depths = (0.3, 1.2, 3.0)
+    forces = [solver.solve([(25, 25, 7.5, d)]).forces_N[0] for d in depths]
+    assert np.all(np.diff(forces) > 0), forces
+    assert forces[0] > 0
+    # stiffening at large strain: the secant stiffness grows with depth
+    assert forces[-1] / depths[-1] > forces[0] / depths[0]
+
+
+def test_centred_punch_gives_a_symmetric_field(mesh, solver):
+    # the grid mesher mirrors its Kuhn split about the centre lines, so the mesh has the square's symmetries
+    # when the cell counts are even: then a centred punch must give an exactly symmetric field
+    X = mesh.nodes_mm
+    key = np.round(X, 6)
+    index = {tuple(k): i for i, k in enumerate(key)}
+    maps = {"mirror x": (lambda k: (round(50 - k[0], 6), k[1], k[2]), np.array([-1, 1, 1]), [0, 1, 2]),
+            "swap x, y": (lambda k: (k[1], k[0], k[2]), np.array([1, 1, 1]), [1, 0, 2])}
+    res = solver.solve([(25, 25, 7.5, 2.0)])
+    u = res.displacement_mm
+    for name, (f, sign, comp) in maps.items():
+        perm = np.array([index[f(k)] for k in key])
+        tets = {tuple(sorted(t)) for t in perm[mesh.tets].tolist()}
+        assert tets == {tuple(sorted(t)) for t in mesh.tets.tolist()}, f"mesh not invariant under {name}"
+        assert np.abs(u[perm][:, comp] * sign - u).max() < 1e-6 * np.abs(u).max(), name
+    assert np.isclose(u[:, 2].min(), -2.0)
+
+
+def test_outputs_keep_labels_and_electrodes_and_write_vtu(mesh, solver, tmp_path):
+    res = solver.solve([Touch(25, 25, 6.25, 2.0)])
+    d = res.deformed_mesh
+    assert np.array_equal(d.region, mesh.region) and d.facets.keys() == mesh.facets.keys()
+    assert all(np.array_equal(d.facets[k], mesh.facets[k]) for k in mesh.facets)
+    assert np.allclose(d.nodes_mm, mesh.nodes_mm + res.displacement_mm)
+    assert res.min_det_F > 0 and np.all(res.det_F() > 0)
+    assert res.max_hydrogel_stretch > 1.0 > res.min_hydrogel_stretch > 0
+    bottom = np.unique(mesh.facets["bottom"])
+    assert np.abs(res.displacement_mm[bottom]).max() == 0.0
+    assert set(res.timings) >= {"assembly", "factorization", "solve", "total"}
+    path = tmp_path / "indent.vtu"
+    res.to_vtu(path)
+    import meshio
+
+    back = meshio.read(path)
+    assert np.allclose(back.points, d.nodes_mm)
+    assert "displacement_mm" in back.point_data
+
+
+def test_bad_touches_are_rejected_before_any_solve(mesh, monkeypatch):
+    import importlib
+
+    mod = importlib.import_module("latticeopt.mechanics.indent")
+
+    def boom(*args, **kwargs):
+        raise AssertionError("the solver was built for a bad touch")
+
+    monkeypatch.setattr(mod.IndentationSolver, "__init__", boom)
+    for touches, name in [([(45, 25, 7.5, 1)], "touches[0].x_mm"), ([(25, 25, 7.5, 9)], "touches[0].depth_mm"),
+                          ([(20, 25, 6, 1), (28, 25, 6, 1)], "touches[1] (x_mm, y_mm)"),
+                          ([(25, 25, float("nan"), 1)], "touches[0].radius_mm")]:
+        with pytest.raises(ParameterError) as err:
+            indent(mesh, touches)
+        assert err.value.name == name
+
+
+def test_indenter_smaller_than_the_mesh_is_a_parameter_error(solver):
+    with pytest.raises(ParameterError, match=r"touches\[0\]\.radius_mm"):
+        solver.solve([(24.3, 24.3, 0.2, 1.0)])
+
+
+def test_convergence_error_names_step_depth_and_residual(mesh):
+    s = IndentSettings(method="newton", max_newton=1, max_step_mm=4.0, min_step_mm=2.0)
+    with pytest.raises(ConvergenceError, match=r"load step 1 from depth 0 mm towards .* residual"):
+        IndentationSolver(mesh, s).solve([(25, 25, 7.5, 4.0)])
+
+
+def test_settings_are_validated():
+    with pytest.raises(ParameterError, match="indenter"):
+        IndentSettings(indenter="cone")
+    with pytest.raises(ParameterError, match="min_step_mm"):
+        IndentSettings(max_step_mm=1.0, min_step_mm=2.0)
+    with pytest.raises(ParameterError, match="method"):
+        IndentSettings(method="magic")
