@@ -1,0 +1,213 @@
+"""Compare reconstruction methods on a simulated test set: metrics per touch count and a picture.
+
+Methods (names used by ``latticeopt recon-eval``): ``background`` (the all-background image, zero change: the
+baseline every method must beat), ``tikhonov/<prior>`` (one-step Gauss-Newton at the
+background), ``gn/<prior>`` (iterative Gauss-Newton, on a subset: it costs several forward solves and
+Jacobians per frame) and ``dnn`` (the trained network). Metrics are CC, PSNR, SSIM and RE of
+:func:`latticeopt.learn.evaluate_images` on the normalized change ``(sigma - sigma0) / sigma0``, with one data
+range for the whole test set (``data_range="dataset"``); no method's images are rescaled before scoring.
+
+Regularization of the classical methods: ``"gcv"`` (per frame, the documented rule of
+:mod:`.classical`), a number (relative to the largest eigenvalue of ``A P^-1 A^T``), or ``"validation"``:
+the lambda of :data:`~latticeopt.recon.classical.GCV_GRID` with the lowest mean squared image error on the
+validation part, with the test frames' noise level (a supervised choice, like the network's training, never
+looking at the test part); iterative Gauss-Newton uses the one-step value.
+GCV needs noise to see: on noise-free frames it drifts to the bottom of its grid.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .. import _validate as v
+from ..errors import ParameterError
+from ..sensor_model import SensorModel, SensorSimulator
+from .classical import GCV_GRID, PRIORS, GaussNewton, LinearReconstructor
+from .dataset import ReconDataset, part_arrays
+
+log = logging.getLogger(__name__)
+
+METHODS = ("background", "tikhonov", "gn", "dnn")
+LAMBDA_RULES = ("gcv", "validation")
+
+
+def tune_lambda(lin: LinearReconstructor, y_val: np.ndarray, images_val: np.ndarray,
+                grid: np.ndarray = GCV_GRID) -> float:
+    """The lambda (absolute) on ``grid * max eigenvalue`` with the lowest mean squared error on validation data."""
+    beta = lin._beta(y_val)
+    truth = images_val.reshape(len(images_val), -1)
+    best, best_err = None, np.inf
+    for lam in np.asarray(grid) * lin.eigenvalues.max():
+        x = (beta / (lin.eigenvalues + lam)) @ lin._M.T
+        err = float(np.mean((x - truth) ** 2))
+        if err < best_err:
+            best, best_err = float(lam), err
+    return best
+
+
+def resolve_lambda(rule, lin: LinearReconstructor, data: ReconDataset | None, model: SensorModel,
+                   snr_db: float | None = None):
+    """Turn a rule (``"gcv"``, ``"validation"`` or a relative number) into what the reconstructors take.
+
+    ``"validation"`` tunes on the validation part with noise of ``snr_db`` (the test frames' noise level).
+    """
+    if isinstance(rule, str):
+        v.choice("lam", rule, LAMBDA_RULES)
+        if rule == "gcv":
+            return "gcv"
+        if data is None:
+            raise ParameterError("lam", "'gcv' or a number (no validation data given)", rule)
+        y, img, _ = part_arrays(data, model, "val", snr_db=snr_db, seed=3)
+        return tune_lambda(lin, y, img)
+    return v.real("lam", rule, lo=0, lo_open=True) * lin.eigenvalues.max()
+
+
+def parse_methods(methods, priors) -> list[str]:
+    out = []
+    for m in methods:
+        v.choice("methods", m, METHODS)
+        if m in ("dnn", "background"):
+            out.append(m)
+        else:
+            out += [f"{m}/{v.choice('prior', p, PRIORS)}" for p in priors]
+    return out
+
+
+def evaluate_methods(model: SensorModel, data: ReconDataset, methods=("tikhonov", "dnn"), priors=("noser",),
+                     lam="gcv", net_path: str | Path | None = None, gn_per_count: int = 10,
+                     test_snr_db: float | None = None, simulator: SensorSimulator | None = None,
+                     progress: bool = False) -> dict:
+    """Reconstruct the test part with every method and score it per touch count.
+
+    Returns
+    -------
+    dict
+        ``"methods"``: ``{name: {"overall": summary, "by_touches": {count: summary}, "n": int, "seconds":
+        float, "lambda": ...}}`` (summaries from :func:`latticeopt.learn.evaluate_images`); ``"images"``:
+        ``{name: (k, n, n)}`` and ``"indices"``: ``{name: test positions used}`` for figures; ``"truth"``,
+        ``"n_touches"``: the test images and counts; ``"test_snr_db"``.
+    """
+    from ..learn import evaluate_images
+
+    data.check_model(model)
+    names = parse_methods(methods, priors)
+    y, truth, counts = part_arrays(data, model, "test", snr_db=test_snr_db)
+    gn_idx = np.concatenate([np.flatnonzero(counts == c)[:gn_per_count] for c in np.unique(counts)])
+    out: dict = {"methods": {}, "images": {}, "indices": {}, "truth": truth, "n_touches": counts,
+                 "test_snr_db": test_snr_db}
+    linear = {}
+    for name in names:
+        t0 = time.perf_counter()
+        kind, _, prior = name.partition("/")
+        idx = gn_idx if kind == "gn" else np.arange(len(y))
+        lam_used = None
+        if kind == "background":
+            images = np.zeros_like(truth)
+        elif kind == "dnn":
+            if net_path is None:
+                raise ParameterError("--net", "a trained network file for method 'dnn'", None)
+            from .dnn import DNNReconstructor
+
+            images = DNNReconstructor(net_path, model).reconstruct(y)
+        else:
+            lin = linear.get(prior) or LinearReconstructor(model, prior)
+            linear[prior] = lin
+            lam_k = resolve_lambda(lam, lin, data, model, test_snr_db)
+            if kind == "tikhonov":
+                images, lam_used = lin.solve(y, lam_k)
+                images = images.reshape(truth.shape)
+            else:
+                sim = simulator or SensorSimulator(model)
+                simulator = sim
+                res = GaussNewton(sim, prior).reconstruct(y[idx], lam_k, progress=progress)
+                images, lam_used = res.images, res.lam
+        seconds = time.perf_counter() - t0
+        scores = evaluate_images(images, truth[idx], groups=counts[idx],
+                                 data_range=float(truth.max() - truth.min()))
+        entry = {"overall": scores["mean"], "by_touches": scores["by_group"], "n": int(len(idx)),
+                 "seconds": seconds, "seconds_per_frame": seconds / len(idx)}
+        if lam_used is not None:
+            rel = np.asarray(lam_used) / linear[prior].eigenvalues.max()
+            entry["lambda_relative"] = {"rule": lam if isinstance(lam, str) else "fixed",
+                                        "median": float(np.median(rel)), "min": float(rel.min()),
+                                        "max": float(rel.max())}
+        out["methods"][name] = entry
+        out["images"][name] = images
+        out["indices"][name] = idx
+        log.info("%s: %d frames in %.1f s, CC %.3f", name, len(idx), seconds, scores["mean"]["cc"])
+    return out
+
+
+def plot_comparison(result: dict, path: str | Path, per_count: int = 1) -> Path:
+    """Ground truth beside each method's images, ``per_count`` test samples per touch count (rows).
+
+    Each image is drawn normalized by its own largest absolute value (as the paper's figures), colour map
+    from -1 (blue, conductivity down) to +1 (red, up).
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    names = list(result["images"])
+    counts = result["n_touches"]
+    common = set(range(len(counts)))
+    for name in names:
+        common &= set(result["indices"][name].tolist())
+    rows = [i for c in np.unique(counts) for i in sorted(j for j in common if counts[j] == c)[:per_count]]
+    if not rows:
+        raise ParameterError("result", "at least one test sample reconstructed by every method", "none")
+    cols = ["truth", *names]
+    fig = Figure(figsize=(1.9 * len(cols), 1.9 * len(rows) + 0.4), layout="constrained")
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(len(rows), len(cols), squeeze=False)
+    for r, i in enumerate(rows):
+        for c, name in enumerate(cols):
+            if name == "truth":
+                img = result["truth"][i]
+            else:
+                pos = int(np.flatnonzero(result["indices"][name] == i)[0])
+                img = result["images"][name][pos]
+            scale = float(np.max(np.abs(img))) or 1.0
+            ax = axes[r, c]
+            ax.imshow(img / scale, origin="lower", cmap="RdBu_r", vmin=-1, vmax=1, extent=(0, 100, 0, 100))
+            ax.set_xticks([])
+            ax.set_yticks([])
+            if r == 0:
+                ax.set_title(name, fontsize=9)
+            if c == 0:
+                ax.set_ylabel(f"{int(counts[i])} touch{'es' if counts[i] > 1 else ''}", fontsize=9)
+    snr = result.get("test_snr_db")
+    fig.suptitle(f"simulated test set ({'noise-free' if snr is None else f'SNR {snr:g} dB'}); images normalized",
+                 fontsize=10)
+    path = Path(path)
+    fig.savefig(path, dpi=110)
+    return path
+
+
+def plot_images(images: np.ndarray, path: str | Path, titles=None, truth: np.ndarray | None = None) -> Path:
+    """Tile reconstructed images (and optionally the truth above them) into a PNG."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    images = np.asarray(images)
+    k = len(images)
+    n_rows = 2 if truth is not None else 1
+    fig = Figure(figsize=(2.6 * k, 2.6 * n_rows + 0.3), layout="constrained")
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(n_rows, k, squeeze=False)
+    lim = float(np.max(np.abs(images))) or 1.0
+    for j in range(k):
+        for r, (row, label) in enumerate([(images, "reconstruction")] if truth is None else
+                                         [(truth, "truth"), (images, "reconstruction")]):
+            ax = axes[r, j]
+            scale = lim if row is images else (float(np.max(np.abs(truth))) or 1.0)
+            im = ax.imshow(row[j], origin="lower", cmap="RdBu_r", vmin=-scale, vmax=scale, extent=(0, 100, 0, 100))
+            ax.set_title(f"{label} {j}" if titles is None else f"{titles[j]}", fontsize=8)
+            ax.set_xlabel("x (mm)", fontsize=7)
+    fig.colorbar(im, ax=axes[-1, -1], label="(sigma - sigma0) / sigma0", shrink=0.8)
+    path = Path(path)
+    fig.savefig(path, dpi=110)
+    return path
