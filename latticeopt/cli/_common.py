@@ -100,3 +100,21 @@ def emit_json(obj: dict) -> None:
     """Print one JSON object on stdout."""
     json.dump(_jsonable(obj), sys.stdout)
     sys.stdout.write("\n")
+
+
+def study_overrides(args: argparse.Namespace) -> list[str]:
+    """The ``--set`` overrides plus those implied by ``--evaluate`` and ``--out`` (sweep and optimize)."""
+    overrides = list(args.overrides)
+    if args.evaluate is not None:
+        overrides.append(f"model={json.dumps(args.evaluate)}")
+    if args.out is not None:
+        overrides.append(f"out={json.dumps(args.out)}")
+    return overrides
+
+
+def check_parallel_args(args: argparse.Namespace) -> None:
+    """Reject ``--jobs < 1`` and a ``--scheduler`` without ``--backend dask`` before any work."""
+    if args.jobs is not None and args.jobs < 1:
+        raise ParameterError("--jobs", "an integer >= 1", args.jobs)
+    if args.scheduler is not None and args.backend != "dask":
+        raise ParameterError("--scheduler", "no scheduler unless --backend dask", args.scheduler)

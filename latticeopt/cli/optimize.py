@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from ._common import check_parallel_args, study_overrides
+
 
 def register(sub) -> None:
     from ..optimize import ALGORITHMS
@@ -45,21 +47,11 @@ def _step_line(step) -> str:
 
 
 def run_optimize_command(args: argparse.Namespace) -> int:
-    import json
 
-    from ..errors import ParameterError
     from ..optimize import effective_bounds_text, load_optimization, run_optimization
 
-    overrides = list(args.overrides)
-    if args.evaluate is not None:
-        overrides.append(f"model={json.dumps(args.evaluate)}")
-    if args.out is not None:
-        overrides.append(f"out={json.dumps(args.out)}")
-    opt = load_optimization(args.study, overrides)
-    if args.jobs is not None and args.jobs < 1:
-        raise ParameterError("--jobs", "an integer >= 1", args.jobs)
-    if args.scheduler is not None and args.backend != "dask":
-        raise ParameterError("--scheduler", "no scheduler unless --backend dask", args.scheduler)
+    opt = load_optimization(args.study, study_overrides(args))
+    check_parallel_args(args)
     cfg, problem, study = opt.config, opt.problem, opt.study
     if args.dry_run:
         print(f"{study.name}: maximize {cfg.objective.describe()} with {cfg.algorithm} over "

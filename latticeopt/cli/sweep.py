@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from ._common import check_parallel_args, study_overrides
+
 
 def register(sub) -> None:
     p = sub.add_parser(
@@ -32,24 +34,14 @@ def register(sub) -> None:
 
 
 def run_sweep_command(args: argparse.Namespace) -> int:
-    import json
     from pathlib import Path
 
-    from ..errors import ParameterError
     from ..store import ResultStore
     from ..study import load_study
     from ..sweep import run_sweep
 
-    overrides = list(args.overrides)
-    if args.evaluate is not None:
-        overrides.append(f"model={json.dumps(args.evaluate)}")
-    if args.out is not None:
-        overrides.append(f"out={json.dumps(args.out)}")
-    study = load_study(args.study, overrides)
-    if args.jobs is not None and args.jobs < 1:
-        raise ParameterError("--jobs", "an integer >= 1", args.jobs)
-    if args.scheduler is not None and args.backend != "dask":
-        raise ParameterError("--scheduler", "no scheduler unless --backend dask", args.scheduler)
+    study = load_study(args.study, study_overrides(args))
+    check_parallel_args(args)
     if args.dry_run:
         stored = 0
         if (Path(study.out_dir) / "results.sqlite").exists():
