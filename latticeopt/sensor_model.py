@@ -21,6 +21,7 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import os
 import zipfile
 import zlib
 from dataclasses import dataclass, field
@@ -236,7 +237,7 @@ def save_sensor_model(model: SensorModel, path: str | Path) -> Path:
         "mesh_electrode_weights": np.concatenate([m.weights(electrode_name(k + 1)) for k in range(n_e)]),
         "sigma_S_per_m": model.sigma_S_per_m, "contact_impedance_ohm_m2": model.contact_impedance_ohm_m2,
     }
-    tmp = path.with_name(path.name + ".part")
+    tmp = path.with_name(f"{path.name}.{os.getpid()}.part")
     with open(tmp, "wb") as fh:
         np.savez_compressed(fh, **arrays)
     tmp.replace(path)

@@ -368,3 +368,16 @@ def test_cache_location_and_disabling(tmp_path, monkeypatch):
     assert m.info["cached"] is False
     assert len(list((tmp_path / "env-cache").glob("*.npz"))) == 1
     assert not (tmp_path / "meshes").exists()
+
+
+def test_concurrent_builders_of_one_mesh_do_not_collide(tmp_path):
+    """Two processes meshing the same uncached design at once (sweep chunks) both succeed."""
+    import subprocess
+    import sys
+
+    code = ("from latticeopt import LatticeDesign, MeshSettings, mesh_design;"
+            f"mesh_design(LatticeDesign(), MeshSettings(size_mm=5.0), cache_dir={str(tmp_path)!r})")
+    procs = [subprocess.Popen([sys.executable, "-c", code], stderr=subprocess.PIPE) for _ in range(3)]
+    errors = [p.communicate()[1].decode() for p in procs]
+    assert [p.returncode for p in procs] == [0, 0, 0], errors
+    assert len(list(tmp_path.glob("*.npz"))) == 1 and not list(tmp_path.glob("*.part"))

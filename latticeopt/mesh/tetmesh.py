@@ -14,6 +14,7 @@ Facet set names: ``top``, ``bottom``, ``hydrogel_boundary`` and ``electrode_1`` 
 from __future__ import annotations
 
 import dataclasses
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -237,7 +238,7 @@ class TetMesh:
         for name, w in self.facet_weights.items():
             arrays[f"weight:{name}"] = w
         path = Path(path)
-        tmp = path.with_name(path.name + ".part")
+        tmp = path.with_name(f"{path.name}.{os.getpid()}.part")
         with open(tmp, "wb") as fh:
             np.savez_compressed(fh, **arrays)
         tmp.replace(path)  # atomic: a crash never leaves a half-written cache entry

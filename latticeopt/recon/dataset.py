@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import zipfile
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -188,7 +189,7 @@ class ReconDataset:
         path = Path(path)
         meta = {"format": DATASET_FORMAT, "format_version": DATASET_VERSION, "config": asdict(self.config),
                 "model_fingerprint": self.model_fingerprint}
-        tmp = path.with_name(path.name + ".part")
+        tmp = path.with_name(f"{path.name}.{os.getpid()}.part")
         with open(tmp, "wb") as fh:
             np.savez(fh, metadata=np.array(json.dumps(meta)), voltages=self.voltages, images=self.images,
                      touches=self.touches, n_touches=self.n_touches, train=self.train, val=self.val, test=self.test)
