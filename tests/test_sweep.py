@@ -174,7 +174,7 @@ def _store_keys(path: Path) -> set[tuple[str, str]]:
 def _start_cli_and_wait_for_rows(tmp_path: Path, out: Path, n_rows: int, log: str):
     """Start ``latticeopt sweep`` (2 workers, slow test double) in its own session; return once rows exist."""
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(TESTS), os.environ.get("PYTHONPATH", "")]),
-           DELAY_ENV: "0.25", LOG_ENV: str(tmp_path / log)}
+           DELAY_ENV: "1.0", LOG_ENV: str(tmp_path / log)}
     cmd = [sys.executable, "-m", "latticeopt", "sweep", str(tmp_path / "study.toml"), "--evaluate",
            "test_sweep:fake_evaluate", "--jobs", "2", "--no-progress", "--out", str(out)]
     proc = subprocess.Popen(cmd, env=env, start_new_session=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
