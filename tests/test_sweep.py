@@ -177,8 +177,10 @@ def _start_cli_and_wait_for_rows(tmp_path: Path, out: Path, n_rows: int, log: st
            DELAY_ENV: "1.0", LOG_ENV: str(tmp_path / log)}
     cmd = [sys.executable, "-m", "latticeopt", "sweep", str(tmp_path / "study.toml"), "--evaluate",
            "test_sweep:fake_evaluate", "--jobs", "2", "--no-progress", "--out", str(out)]
+    # A shell that runs the tests as a background job starts them with SIGINT ignored, and a child would inherit
+    # that; give the CLI the disposition a terminal's foreground job has.
     proc = subprocess.Popen(cmd, env=env, start_new_session=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True)
+                            text=True, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     db = out / "results.sqlite"
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline and proc.poll() is None:
