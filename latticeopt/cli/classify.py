@@ -5,7 +5,7 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-DEFAULT_EPOCHS = 60
+DEFAULT_EPOCHS = 100
 
 
 def register(sub) -> None:

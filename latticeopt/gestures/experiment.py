@@ -75,7 +75,7 @@ def accuracy_table(summary: dict) -> str:
     return "\n".join(lines)
 
 
-def train_gesture_models(data, test, out_dir: str | Path, *, epochs: int = 60, seed: int = 0,
+def train_gesture_models(data, test, out_dir: str | Path, *, epochs: int = 100, seed: int = 0,
                          num_threads: int | None = 1, patience: int | None = None, progress: bool = False,
                          models=("cnn", "lstm"), description: dict | None = None, batch_size: int = 256,
                          learning_rate: float = 1e-4) -> dict:
