@@ -22,7 +22,9 @@ def solver(mesh):
 
 
 def test_full_newton_converges_quadratically(mesh):
-    res = IndentationSolver(mesh, IndentSettings(method="newton", rtol=1e-10)).solve([(25, 25, 6.25, 1.0)])
+    # exact Newton: double-precision tangent and factorization
+    res = IndentationSolver(mesh, IndentSettings(method="newton", rtol=1e-10, precision="double")).solve(
+        [(25, 25, 6.25, 1.0)])
     r = np.array(res.residual_norms[-1][1:])  # after the prescribed-increment iteration
     r = r[r > 1e-11]  # above round-off
     assert len(r) >= 3
@@ -39,6 +41,17 @@ def test_bfgs_and_newton_reach_the_same_state(mesh, solver):
     assert a.forces_N[0] == pytest.approx(b.forces_N[0], rel=1e-5)
     assert np.abs(a.displacement_mm - b.displacement_mm).max() < 1e-4
     assert a.solver["n_factorizations"] < b.solver["n_factorizations"]
+
+
+def test_single_precision_tangent_reaches_the_double_precision_state(mesh, solver):
+    """The float32 tangent and factorization only steer the iterations: same converged state to rtol."""
+    touch = [(25, 25, 6.25, 1.5)]
+    a = solver.solve(touch)
+    double = IndentationSolver(mesh, IndentSettings(precision="double"))
+    b = double.solve(touch)
+    assert solver.linear.precision == "single" and double.linear.precision == "double"
+    assert a.forces_N[0] == pytest.approx(b.forces_N[0], rel=1e-5)
+    assert np.abs(a.displacement_mm - b.displacement_mm).max() < 1e-4
 
 
 def test_force_rises_monotonically_with_depth(solver):
