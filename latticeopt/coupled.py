@@ -34,7 +34,7 @@ from .electrics.forward import (
 )
 from .errors import ParameterError
 from .mechanics.indent import IndentationSolver, IndentSettings
-from .mechanics.indenters import IN_PLANE, INDENTERS
+from .mechanics.indenters import IN_PLANE, INDENTERS, PUNCH_EDGES
 from .mechanics.materials import Materials, NeoHookean
 from .mesh import MeshSettings, mesh_design
 from .touches import Touch
@@ -54,6 +54,9 @@ class PhysicsSettings:
         ``"flat"`` punch (default) or ``"sphere"``.
     in_plane
         Flat punch contact: ``"bonded"`` (no slip) or ``"frictionless"``.
+    punch_edge
+        Flat punch rim: ``"conforming"`` (top nodes moved onto the rim, default) or ``"nodal"``; see
+        :class:`latticeopt.mechanics.IndentSettings`.
     silicone_shear_kPa, hydrogel_shear_kPa
         Initial shear moduli (kPa); sources in :mod:`latticeopt.mechanics.materials`.
     poisson_ratio
@@ -68,6 +71,7 @@ class PhysicsSettings:
 
     indenter: str = "flat"
     in_plane: str = "bonded"
+    punch_edge: str = "conforming"
     silicone_shear_kPa: float = _SILICONE.shear_modulus_kPa
     hydrogel_shear_kPa: float = _GEL.shear_modulus_kPa
     poisson_ratio: float = _SILICONE.poisson_ratio
@@ -79,6 +83,7 @@ class PhysicsSettings:
         set_ = object.__setattr__
         set_(self, "indenter", v.choice("indenter", self.indenter, INDENTERS))
         set_(self, "in_plane", v.choice("in_plane", self.in_plane, IN_PLANE))
+        set_(self, "punch_edge", v.choice("punch_edge", self.punch_edge, PUNCH_EDGES))
         for name in ("silicone_shear_kPa", "hydrogel_shear_kPa", "sigma_S_per_m", "current_A"):
             set_(self, name, v.real(name, getattr(self, name), lo=0, lo_open=True))
         set_(self, "contact_impedance_ohm_m2",
@@ -98,7 +103,8 @@ class PhysicsSettings:
     def indent_settings(self) -> IndentSettings:
         materials = Materials(silicone=NeoHookean(self.silicone_shear_kPa, self.poisson_ratio),
                               hydrogel=NeoHookean(self.hydrogel_shear_kPa, self.poisson_ratio))
-        return IndentSettings(materials=materials, indenter=self.indenter, in_plane=self.in_plane)
+        return IndentSettings(materials=materials, indenter=self.indenter, in_plane=self.in_plane,
+                              punch_edge=self.punch_edge)
 
     def as_dict(self) -> dict:
         return dataclasses.asdict(self)

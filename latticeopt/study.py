@@ -42,7 +42,7 @@ __all__ = ["DEFAULT_MODEL", "PHYSICS_KEYS", "STUDY_KINDS", "EvalSettings", "Stud
 
 STUDY_KINDS = ("grid", "press")
 #: Bump when the coupled model's results change for the same inputs (stored rows then stop matching).
-MODEL_REVISION = 1
+MODEL_REVISION = 2  # 2: conforming flat-punch rim, single-precision mechanics tangent
 #: The evaluation function a study uses unless it names another (``model = "module:function"``).
 DEFAULT_MODEL = "latticeopt.coupled:evaluate_phantom"
 
@@ -72,6 +72,7 @@ def _poisson(name: str, value: object) -> float:
 PHYSICS_KEYS: dict[str, Callable[[str, object], object]] = {
     "indenter": _string,
     "in_plane": _string,
+    "punch_edge": _string,
     "silicone_shear_kPa": _positive,
     "hydrogel_shear_kPa": _positive,
     "poisson_ratio": _poisson,

@@ -8,7 +8,7 @@ from ._common import add_design_args, add_mesh_args, design_from_args, emit_json
 
 
 def register(sub) -> None:
-    from ..mechanics.indenters import IN_PLANE, INDENTERS
+    from ..mechanics.indenters import IN_PLANE, INDENTERS, PUNCH_EDGES
 
     p = sub.add_parser("indent", help="hyperelastic indentation of a design",
                        description="Indent the top surface with rigid round indenters (neo-Hookean stack, "
@@ -21,6 +21,8 @@ def register(sub) -> None:
     g.add_argument("--indenter", choices=INDENTERS, default="flat", help="indenter tip (default flat punch)")
     g.add_argument("--in-plane", choices=IN_PLANE, default="bonded",
                    help="flat punch: in-plane condition under the punch (default bonded)")
+    g.add_argument("--punch-edge", choices=PUNCH_EDGES, default="conforming",
+                   help="flat punch rim: top nodes moved onto it (conforming, default) or the nodes inside (nodal)")
     g.add_argument("--max-step", type=float, default=None, help="largest depth increment per load step (mm)")
     p.add_argument("-o", "--output", default=None, help="write the deformed mesh as VTU (ParaView)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of text")
@@ -36,7 +38,8 @@ def run_indent(args) -> int:
     design = design_from_args(args)
     touches = validate_touches(design, touches)  # before meshing or solving
     extra = {} if args.max_step is None else {"max_step_mm": args.max_step}
-    settings = IndentSettings(indenter=args.indenter, in_plane=args.in_plane, **extra)
+    settings = IndentSettings(indenter=args.indenter, in_plane=args.in_plane, punch_edge=args.punch_edge,
+                              **extra)
     t0 = time.perf_counter()
     mesh = mesh_from_args(args)
     t_mesh = time.perf_counter() - t0

@@ -9,7 +9,7 @@ from ._common import add_design_args, add_mesh_args, design_from_args, emit_json
 
 def register(sub) -> None:
     from ..coupled import PhysicsSettings
-    from ..mechanics.indenters import IN_PLANE, INDENTERS
+    from ..mechanics.indenters import IN_PLANE, INDENTERS, PUNCH_EDGES
 
     d = PhysicsSettings()
     p = sub.add_parser("simulate", help="coupled indentation + electrics of one phantom: V_rel",
@@ -22,6 +22,8 @@ def register(sub) -> None:
                    help="indenter centre x, y, radius and depth in mm (repeat for up to three touches)")
     g.add_argument("--indenter", choices=INDENTERS, default=d.indenter, help="indenter tip (default flat punch)")
     g.add_argument("--in-plane", choices=IN_PLANE, default=d.in_plane, help="flat punch in-plane condition")
+    g.add_argument("--punch-edge", choices=PUNCH_EDGES, default=d.punch_edge,
+                   help="flat punch rim: conforming (default) or nodal")
     g.add_argument("--sigma", type=float, default=d.sigma_S_per_m, help="hydrogel conductivity (S/m)")
     g.add_argument("--contact-impedance", type=float, default=d.contact_impedance_ohm_m2,
                    help="electrode contact impedance (ohm m^2)")
@@ -36,7 +38,8 @@ def run_simulate(args) -> int:
     touches = [Touch.parse(text, name=f"--touch #{i + 1}") for i, text in enumerate(args.touch)]
     design = design_from_args(args)
     touches = validate_touches(design, touches)  # before meshing or solving
-    physics = PhysicsSettings(indenter=args.indenter, in_plane=args.in_plane, sigma_S_per_m=args.sigma,
+    physics = PhysicsSettings(indenter=args.indenter, in_plane=args.in_plane, punch_edge=args.punch_edge,
+                              sigma_S_per_m=args.sigma,
                               contact_impedance_ohm_m2=args.contact_impedance)
     settings = mesh_settings_from_args(args)
     t0 = time.perf_counter()

@@ -29,6 +29,7 @@ derivative of the patch volume).
 
 from __future__ import annotations
 
+import copy
 import logging
 from dataclasses import dataclass
 
@@ -155,21 +156,36 @@ class NeoHookeanOperator:
         self.grad, self.vol = reference_gradients(mesh.nodes_mm, self.tets)
         if np.any(self.vol <= 0):
             raise ValueError("mesh: every tet must be positively oriented with positive volume")
-        mu, kappa_tet = materials.moduli_MPa(mesh.region[self.order])
+        mu, self._kappa_tet = materials.moduli_MPa(mesh.region[self.order])
         self.mu = mu
         P = int(self.patch.max()) + 1
         self.n_patches = P
-        self.patch_vol = np.bincount(self.patch, self.vol, minlength=P)
-        self.patch_kappa = np.bincount(self.patch, kappa_tet * self.vol, minlength=P) / self.patch_vol
         self._build_patch_nodes(P)
         self._build_pattern()
         M = mesh.n_tets
         self._tet_dofs = (3 * self.tets[:, :, None] + np.arange(3)).reshape(M, 12)
-        G = np.einsum("eaj,ebj->eab", self.grad, self.grad).reshape(M, 16)
-        la, li, lb, lk = self._tet_pair_parts
-        self._G_delta = (G[:, 4 * la + lb] * (li == lk)).astype(self._ft)
+        self._set_geometry(self.grad, self.vol)
         log.debug("operator: %d tets, %d patches (max %d nodes), %d dofs, %d upper nonzeros",
                   M, P, self._kmax, self.n_dofs, self.nnz)
+
+    def _set_geometry(self, grad: np.ndarray, vol: np.ndarray) -> None:
+        """Everything that depends on the reference node positions (patch-sorted tets)."""
+        self.grad, self.vol = grad, vol
+        P = self.n_patches
+        self.patch_vol = np.bincount(self.patch, vol, minlength=P)
+        self.patch_kappa = np.bincount(self.patch, self._kappa_tet * vol, minlength=P) / self.patch_vol
+        G = np.einsum("eaj,ebj->eab", grad, grad).reshape(len(vol), 16)
+        la, li, lb, lk = self._tet_pair_parts
+        self._G_delta = (G[:, 4 * la + lb] * (li == lk)).astype(self._ft)
+
+    def with_reference(self, nodes_mm: np.ndarray) -> NeoHookeanOperator:
+        """The same operator (pattern, maps, materials shared) on moved reference nodes, same topology."""
+        grad, vol = reference_gradients(np.asarray(nodes_mm, dtype=float), self.tets)
+        if np.any(vol <= 0):
+            raise ValueError("nodes_mm: every tet must keep a positive volume")
+        other = copy.copy(self)
+        other._set_geometry(grad, vol)
+        return other
 
     # -- one-off structure --------------------------------------------------------------------------
     def _build_patch_nodes(self, P: int) -> None:

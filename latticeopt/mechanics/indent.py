@@ -42,7 +42,7 @@ from ..linalg import BACKENDS, PRECISIONS, SymmetricSolver
 from ..mesh.tetmesh import TetMesh
 from ..touches import Touch, check_touches
 from .assembly import VOLUMETRIC, Evaluation, NeoHookeanOperator
-from .indenters import IN_PLANE, INDENTERS, Constraints
+from .indenters import IN_PLANE, INDENTERS, PUNCH_EDGES, Constraints, conform_punch_edges
 from .materials import Materials
 
 log = logging.getLogger(__name__)
@@ -63,6 +63,11 @@ class IndentSettings:
         ``"flat"`` (flat-ended punch, default) or ``"sphere"`` (hemispherical tip of the touch radius).
     in_plane
         Flat punch only: ``"bonded"`` (no slip, default) or ``"frictionless"``. The sphere is frictionless.
+    punch_edge
+        Flat punch only: ``"conforming"`` (default: top-surface nodes near each rim are moved onto it before
+        the solve, so results move continuously with the touch; see
+        :func:`~latticeopt.mechanics.indenters.conform_punch_edges`) or ``"nodal"`` (the disc holds the top
+        nodes inside it, a staircase of cells).
     volumetric
         ``"patch"`` (mean dilatation per hexahedral cell, locking-free, default) or ``"element"`` (plain P1).
     max_step_mm
@@ -99,6 +104,7 @@ class IndentSettings:
     materials: Materials = field(default_factory=Materials)
     indenter: str = "flat"
     in_plane: str = "bonded"
+    punch_edge: str = "conforming"
     volumetric: str = "patch"
     max_step_mm: float = 1.0
     min_step_mm: float = 0.01
@@ -118,6 +124,7 @@ class IndentSettings:
             raise ParameterError("materials", "a latticeopt.mechanics.Materials", self.materials)
         set_(self, "indenter", v.choice("indenter", self.indenter, INDENTERS))
         set_(self, "in_plane", v.choice("in_plane", self.in_plane, IN_PLANE))
+        set_(self, "punch_edge", v.choice("punch_edge", self.punch_edge, PUNCH_EDGES))
         set_(self, "volumetric", v.choice("volumetric", self.volumetric, VOLUMETRIC))
         set_(self, "backend", v.choice("backend", self.backend, BACKENDS))
         set_(self, "precision", v.choice("precision", self.precision, PRECISIONS))
@@ -144,9 +151,11 @@ class IndentationResult:
     touches
         The validated touches.
     displacement_mm
-        Nodal displacement, shape ``(N, 3)``.
+        Nodal displacement from the reference configuration, shape ``(N, 3)``. With a conforming punch edge
+        the reference is the mesh with the top nodes near each rim moved onto it (``deformed_mesh.nodes_mm -
+        displacement_mm``; hydrogel nodes never move).
     deformed_mesh
-        ``mesh.with_nodes(nodes + u)``: region labels and facet sets (electrodes) intact.
+        ``mesh.with_nodes(reference + u)``: region labels and facet sets (electrodes) intact.
     forces_N
         Force of every indenter (N, positive pushing down), shape ``(n_touches,)``.
     newton_steps
@@ -235,6 +244,12 @@ class IndentationSolver:
         self.x_range, self.y_range = (float(lo[0]), float(hi[0])), (float(lo[1]), float(hi[1]))
         self.thickness_mm = float(mesh.nodes_mm[self.top_nodes, 2].mean() - mesh.nodes_mm[self.bottom_nodes, 2].mean())
         self._gel = mesh.region == REGION_IDS["hydrogel"]
+        # nodes a conforming punch rim may move: top surface, off the sensor's rim, off the hydrogel
+        xy = mesh.nodes_mm[:, :2]
+        self._movable = np.zeros(mesh.n_nodes, dtype=bool)
+        self._movable[self.top_nodes] = True
+        self._movable[mesh.tets[self._gel].ravel()] = False
+        self._movable &= (xy[:, 0] > lo[0]) & (xy[:, 0] < hi[0]) & (xy[:, 1] > lo[1]) & (xy[:, 1] < hi[1])
         n = self.op.n_dofs
         self._ev0 = self.op.evaluate(np.zeros((mesh.n_nodes, 3)))
         isD = np.zeros(n, dtype=bool)
@@ -267,12 +282,18 @@ class IndentationSolver:
         t_start = time.perf_counter()
         s = self.settings
         touches = check_touches(touches, self.x_range, self.y_range, self.thickness_mm)
-        cons = Constraints(self.mesh.nodes_mm, self.top_nodes, self.bottom_nodes, touches, s.indenter, s.in_plane)
         self._clock = {"assembly": 0.0, "factorization": 0.0, "solve": 0.0}
+        ref, self._op, ev = self.mesh.nodes_mm, self.op, self._ev0
+        if s.indenter == "flat" and s.punch_edge == "conforming":
+            ref = conform_punch_edges(self.mesh.nodes_mm, self.mesh.tets, self.mesh.facets["top"], self._movable,
+                                      touches)
+            self._op = self.op.with_reference(ref)
+            ev = self._evaluate(np.zeros_like(ref))
+        n_moved = int(np.count_nonzero(np.any(ref != self.mesh.nodes_mm, axis=1)))
+        cons = Constraints(ref, self.top_nodes, self.bottom_nodes, touches, s.indenter, s.in_plane)
         self._n_solves = self._n_factor = 0
         self._factor_isD = None  # Dirichlet set of the current factorization (none yet for this phantom)
         u = np.zeros((self.mesh.n_nodes, 3))
-        ev = self._ev0
         d_max = max(t.depth_mm for t in touches)
         lam, history, halvings = 0.0, [], 0
         dlam_max = 1.0 if d_max == 0 else min(1.0, s.max_step_mm / d_max)
@@ -304,9 +325,9 @@ class IndentationSolver:
             if len(norms) <= 4:
                 dlam = min(dlam * 2.0, dlam_max)
         forces = cons.forces_N(ev.residual_N)
-        J, _ = self.op.jacobians(u)
+        J, _ = self._op.jacobians(u)
         if self._gel.any():
-            st = self.op.principal_stretches(u, self._gel)
+            st = self._op.principal_stretches(u, self._gel)
             smax, smin = float(st.max()), float(st.min())
         else:
             smax = smin = float("nan")
@@ -317,17 +338,17 @@ class IndentationSolver:
         clock["setup"] = self.setup_seconds
         stats = {"backend": self.linear.backend, "n_dofs": self.op.n_dofs, "nnz_upper": self.op.nnz,
                  "n_factorizations": self._n_factor, "method": s.method, "volumetric": s.volumetric,
-                 "indenter": s.indenter,
-                 "in_plane": s.in_plane, "contact_nodes": [int(len(n)) for n in cons.contact_nodes()]}
+                 "indenter": s.indenter, "in_plane": s.in_plane, "punch_edge": s.punch_edge,
+                 "moved_reference_nodes": n_moved, "contact_nodes": [int(len(n)) for n in cons.contact_nodes()]}
         return IndentationResult(
-            touches=touches, displacement_mm=u, deformed_mesh=self.mesh.with_nodes(self.mesh.nodes_mm + u),
+            touches=touches, displacement_mm=u, deformed_mesh=self.mesh.with_nodes(ref + u),
             forces_N=forces, newton_steps=self._n_solves, load_steps=len(history), step_halvings=halvings,
             max_hydrogel_stretch=smax, min_hydrogel_stretch=smin, min_det_F=float(J.min()),
             residual_norms=tuple(history), timings=clock, solver=stats)
 
     def _evaluate(self, u: np.ndarray, tangent: bool = True) -> Evaluation:
         t = time.perf_counter()
-        ev = self.op.evaluate(u, residual=True, tangent=tangent)
+        ev = self._op.evaluate(u, residual=True, tangent=tangent)
         self._clock["assembly"] += time.perf_counter() - t
         return ev
 

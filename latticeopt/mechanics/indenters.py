@@ -5,6 +5,15 @@ Flat-ended punch (default): every top-surface node whose ``(x, y)`` lies inside 
 those nodes keep ``u_x = u_y = 0``, the limit for tacky silicone under a rigid probe, and the more robust
 one for Newton) or ``"frictionless"`` (``u_x, u_y`` free; the assumption of Hayes et al. 1972).
 
+Conforming punch edge (default for the flat punch, :func:`conform_punch_edges`): before the solve, the
+reference positions of the top-surface nodes near each disc's rim are moved radially onto the rim (and
+their neighbours stretched to make room), so the constrained patch is a polygon inscribed in the circle
+instead of a staircase of whole cells. Without it the contact area, the force and V_rel jump by a few
+percent whenever a node enters or leaves a disc as the centre or radius moves; with it they move almost
+continuously (``tests/test_mechanics_indent.py``), which is what an optimizer and a mesh-convergence study
+need. Only nodes of the silicone top layer move (never hydrogel nodes, so the electrics sees the mesh it was
+built on) and never nodes on the sensor's rim.
+
 Spherical tip (option): a hemispherical end of the same radius ``r``. Frictionless unilateral contact on
 the vertical displacement of the top nodes inside the disc: ``u_z <= ubar(rho) = -(lam d - (r - sqrt(r^2 -
 rho^2)))`` (gap measured vertically at the undeformed ``(x, y)``, a small-sliding approximation), with the
@@ -21,6 +30,81 @@ from ..touches import Touch
 
 INDENTERS = ("flat", "sphere")
 IN_PLANE = ("bonded", "frictionless")
+PUNCH_EDGES = ("conforming", "nodal")
+
+
+def conform_punch_edges(nodes_mm: np.ndarray, tets: np.ndarray, top_tris: np.ndarray, movable: np.ndarray,
+                        touches: tuple[Touch, ...], inner: float = 0.25, outer: float = 0.75,
+                        gap: float = 0.3) -> np.ndarray:
+    """Reference nodes with the flat punches' rims resolved by the top-surface mesh.
+
+    For every touch, a top node at distance ``rho`` from the centre with ``s = (rho - R) / h`` (``h`` its
+    shortest top-surface edge) is moved radially by a piecewise-linear map of ``rho`` that is the identity
+    for ``|s| >= outer``, collapses ``|s| <= inner`` onto the rim ``rho = R`` and stretches linearly in
+    between. The map is monotone along every ray and continuous in the touch's centre and radius, so node
+    positions jump only where an outside node joins the rim (by ``gap * h``: a free node closer to the rim
+    than that makes a sliver that the punch shears by its whole depth); with ``inner < 0.5`` at most one
+    node per ray lands on the rim. Tets whose volume would fall below a tenth of the original keep their
+    nodes where they were. Discs narrower than two typical edges are left alone (nodal rule).
+
+    Parameters
+    ----------
+    nodes_mm : ndarray, shape (N, 3)
+    tets : ndarray, shape (M, 4)
+    top_tris : ndarray, shape (K, 3)
+        Top-surface triangles (node indices).
+    movable : ndarray of bool, shape (N,)
+        Nodes allowed to move (top nodes off the sensor rim and off the hydrogel).
+    touches : tuple of Touch
+    inner, outer
+        Band half-widths in units of the local edge length, ``0 < inner < outer <= 1``.
+    gap
+        Closest approach of a free outside node to the rim, in units of the local edge length.
+
+    Returns
+    -------
+    ndarray, shape (N, 3)
+        A copy of ``nodes_mm`` with moved ``(x, y)`` (``z`` unchanged: the top stays flat).
+    """
+    out = np.array(nodes_mm, dtype=float, copy=True)
+    edges = np.concatenate([top_tris[:, [0, 1]], top_tris[:, [1, 2]], top_tris[:, [2, 0]]])
+    length = np.linalg.norm(nodes_mm[edges[:, 0], :2] - nodes_mm[edges[:, 1], :2], axis=1)
+    h = np.full(len(nodes_mm), np.inf)
+    np.minimum.at(h, edges[:, 0], length)
+    np.minimum.at(h, edges[:, 1], length)
+    free = movable & np.isfinite(h)
+    for t in touches:
+        if t.radius_mm < 2.0 * np.median(length):
+            continue  # a disc a few cells across is not resolved by moving nodes; it keeps the nodal rule
+        d = out[:, :2] - (t.x_mm, t.y_mm)
+        rho = np.hypot(d[:, 0], d[:, 1])
+        s = (rho - t.radius_mm) / np.where(free, h, np.inf)
+        band = free & (np.abs(s) < outer) & (rho > 0)
+        # |s| <= inner -> 0 (on the rim); inside: inner..outer -> 0..outer; outside: inner..outer ->
+        # gap..outer, so no free node comes closer to the rim than gap * h (a sliver there, sheared by the
+        # whole depth, stalls Newton); linear, sign kept
+        a = np.abs(s[band])
+        lo = np.where(s[band] > 0, gap, 0.0)
+        s_new = np.sign(s[band]) * np.where(a <= inner, 0.0, lo + (a - inner) / (outer - inner) * (outer - lo))
+        rho_new = t.radius_mm + s_new * h[band]
+        out[band, :2] = (t.x_mm, t.y_mm) + d[band] * (rho_new / rho[band])[:, None]
+        free &= ~band  # a node belongs to one rim (discs never overlap)
+    moved = np.flatnonzero(np.any(out != nodes_mm, axis=1))
+    if len(moved):
+        near = np.flatnonzero(np.isin(tets, moved).any(axis=1))
+        vol0 = _volumes(nodes_mm, tets[near])
+        for _ in range(10):
+            bad = near[_volumes(out, tets[near]) < 0.1 * vol0]
+            if not len(bad):
+                break
+            back = np.intersect1d(tets[bad].ravel(), moved)
+            out[back] = nodes_mm[back]
+    return out
+
+
+def _volumes(nodes: np.ndarray, tets: np.ndarray) -> np.ndarray:
+    x = nodes[tets]
+    return np.einsum("ij,ij->i", np.cross(x[:, 1] - x[:, 0], x[:, 2] - x[:, 0]), x[:, 3] - x[:, 0]) / 6.0
 
 
 class Constraints:
