@@ -1,6 +1,6 @@
 """Seconds per coupled phantom and the extrapolated wall time of a paper-size sweep.
 
-    python benchmarks/bench_sweep.py [--size 2.0] [--phantoms 6] [--workers 1 2]
+    python benchmarks/bench_sweep.py [--size 2.0] [--channel-cells 2] [--phantoms 6] [--workers 1 2]
 
 For the default design it times phantoms of studies/paper_fig4.toml's phantom set (1, 2 and 3 touches in turn)
 split into set-up (mesh read, mechanics operator, reference electrics), mechanics and electrics, first with
@@ -33,9 +33,9 @@ def _phantoms(n: int, seed: int = 2025):
 
 
 def _run(args):
-    size, phantoms = args
+    size, cells, phantoms = args
     t0 = time.perf_counter()
-    model = CoupledModel(LatticeDesign(), MeshSettings(size_mm=size), cache_dir=CACHE)
+    model = CoupledModel(LatticeDesign(), MeshSettings(size_mm=size, channel_cells=cells), cache_dir=CACHE)
     setup = time.perf_counter() - t0
     rows = []
     for ph in phantoms:
@@ -47,19 +47,21 @@ def _run(args):
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", type=float, default=MeshSettings().size_mm)
+    ap.add_argument("--channel-cells", type=int, default=MeshSettings().channel_cells)
     ap.add_argument("--phantoms", type=int, default=6)
     ap.add_argument("--workers", type=int, nargs="+", default=[1, 2])
     a = ap.parse_args()
     phantoms = _phantoms(a.phantoms)
-    _run((a.size, phantoms[:1]))  # warm the mesh cache and the imports
+    _run((a.size, a.channel_cells, phantoms[:1]))  # warm the mesh cache and the imports
     print(f"load average before: {os.getloadavg()[0]:.2f} (2 cores)")
-    print(f"default design w = 4, t = 3; grid mesh size {a.size} mm; {a.phantoms} phantoms (1-3 touches)")
+    print(f"default design w = 4, t = 3; grid mesh size {a.size} mm, "
+          f"{a.channel_cells} channel cells; {a.phantoms} phantoms (1-3 touches)")
     per_phantom = {}
     for workers in a.workers:
         chunks = [phantoms[i::workers] for i in range(workers)]
         t0 = time.perf_counter()
         with ProcessPoolExecutor(workers) as ex:
-            out = list(ex.map(_run, [(a.size, c) for c in chunks]))
+            out = list(ex.map(_run, [(a.size, a.channel_cells, c) for c in chunks]))
         wall = time.perf_counter() - t0
         rows = [r for _, rr, _ in out for r in rr]
         setup = np.mean([s for s, _, _ in out])
