@@ -1,0 +1,180 @@
+"""Settings and result of an indentation (frozen dataclasses; the solver is :mod:`.indent`)."""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .. import _validate as v
+from ..errors import ParameterError
+from ..linalg import BACKENDS, PRECISIONS
+from ..mesh.tetmesh import TetMesh
+from .assembly import VOLUMETRIC
+from .indenters import IN_PLANE, INDENTERS, PUNCH_EDGES
+from .materials import Materials
+
+__all__ = ["METHODS", "PREDICTORS", "IndentSettings", "IndentationResult"]
+
+PREDICTORS = ("secant", "tangent")
+METHODS = ("bfgs", "newton")
+
+
+@dataclass(frozen=True)
+class IndentSettings:
+    """How to indent.
+
+    Parameters
+    ----------
+    materials
+        Neo-Hookean parameters per region.
+    indenter
+        ``"flat"`` (flat-ended punch, default) or ``"sphere"`` (hemispherical tip of the touch radius).
+    in_plane
+        Flat punch only: ``"bonded"`` (no slip, default) or ``"frictionless"``. The sphere is frictionless.
+    punch_edge
+        Flat punch only: ``"conforming"`` (default: top-surface nodes near each rim are moved onto it before
+        the solve, so results move continuously with the touch; see
+        :func:`~latticeopt.mechanics.indenters.conform_punch_edges`) or ``"nodal"`` (the disc holds the top
+        nodes inside it, a staircase of cells).
+    volumetric
+        ``"patch"`` (mean dilatation per hexahedral cell, locking-free, default) or ``"element"`` (plain P1).
+    max_step_mm
+        Largest depth increment of the deepest touch per load step (mm).
+    min_step_mm
+        Step halving gives up below this increment (mm).
+    max_newton
+        Newton iterations per load step before the step counts as failed.
+    rtol
+        Converged when ``|R_free| <= rtol * |R_constrained|`` ...
+    atol_N
+        ... or ``|R_free| <= atol_N`` (N).
+    step_rtol
+        The looser ``rtol`` of intermediate load steps (only the final state must be accurate; each step's
+        start is re-equilibrated anyway).
+    predictor
+        Start of each load step after the first: ``"tangent"`` (apply the increment through the tangent,
+        default) or ``"secant"`` (extrapolate the last two converged states; measured worse here).
+    method
+        ``"bfgs"`` (default): factorize the tangent at the start of each load step and iterate with
+        limited-memory BFGS updates on top of it, refactorizing when progress stalls (superlinear, each
+        iteration one back-substitution). ``"newton"``: full Newton, a new factorization every iteration
+        (quadratic). Measured in ``benchmarks/bench_indent.py``.
+    max_bfgs
+        BFGS memory, and iterations on one factorization before a refactorization.
+    backend
+        Sparse solver: ``"auto"`` (PARDISO if installed), ``"pardiso"`` or ``"scipy"``.
+    precision
+        Tangent assembly and factorization in ``"single"`` (default; PARDISO) or ``"double"`` precision. The
+        tangent only steers the iterations; convergence is judged on the double-precision residual, so the
+        converged state is the same to ``rtol`` (``tests/test_mechanics_indent.py``), at about 0.6x the time.
+    """
+
+    materials: Materials = field(default_factory=Materials)
+    indenter: str = "flat"
+    in_plane: str = "bonded"
+    punch_edge: str = "conforming"
+    volumetric: str = "patch"
+    max_step_mm: float = 1.0
+    min_step_mm: float = 0.01
+    max_newton: int = 12
+    rtol: float = 1e-6
+    atol_N: float = 1e-10
+    step_rtol: float = 1e-3
+    method: str = "bfgs"
+    max_bfgs: int = 8
+    predictor: str = "tangent"
+    backend: str = "auto"
+    precision: str = "single"
+
+    def __post_init__(self) -> None:
+        set_ = object.__setattr__
+        if not isinstance(self.materials, Materials):
+            raise ParameterError("materials", "a latticeopt.mechanics.Materials", self.materials)
+        set_(self, "indenter", v.choice("indenter", self.indenter, INDENTERS))
+        set_(self, "in_plane", v.choice("in_plane", self.in_plane, IN_PLANE))
+        set_(self, "punch_edge", v.choice("punch_edge", self.punch_edge, PUNCH_EDGES))
+        set_(self, "volumetric", v.choice("volumetric", self.volumetric, VOLUMETRIC))
+        set_(self, "backend", v.choice("backend", self.backend, BACKENDS))
+        set_(self, "precision", v.choice("precision", self.precision, PRECISIONS))
+        set_(self, "max_step_mm", v.real("max_step_mm", self.max_step_mm, lo=0, lo_open=True))
+        set_(self, "min_step_mm", v.real("min_step_mm", self.min_step_mm, lo=0, lo_open=True, hi=self.max_step_mm))
+        set_(self, "max_newton", v.integer("max_newton", self.max_newton, lo=1, hi=200))
+        set_(self, "rtol", v.real("rtol", self.rtol, lo=0, lo_open=True, hi=1e-1))
+        set_(self, "atol_N", v.real("atol_N", self.atol_N, lo=0))
+        set_(self, "step_rtol", v.real("step_rtol", self.step_rtol, lo=0, lo_open=True, hi=1e-1))
+        set_(self, "predictor", v.choice("predictor", self.predictor, PREDICTORS))
+        set_(self, "method", v.choice("method", self.method, METHODS))
+        set_(self, "max_bfgs", v.integer("max_bfgs", self.max_bfgs, lo=1, hi=100))
+
+    def as_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+@dataclass(frozen=True, eq=False)
+class IndentationResult:
+    """Outcome of one indentation (mm, N).
+
+    Attributes
+    ----------
+    touches
+        The validated touches.
+    displacement_mm
+        Nodal displacement from the reference configuration, shape ``(N, 3)``. With a conforming punch edge
+        the reference is the mesh with the top nodes near each rim moved onto it (``deformed_mesh.nodes_mm -
+        displacement_mm``; hydrogel nodes never move).
+    deformed_mesh
+        ``mesh.with_nodes(reference + u)``: region labels and facet sets (electrodes) intact.
+    forces_N
+        Force of every indenter (N, positive pushing down), shape ``(n_touches,)``.
+    newton_steps
+        Linear solves (Newton iterations) over all load steps.
+    load_steps
+        Accepted load steps.
+    step_halvings
+        Load steps that failed and were retried at half the increment.
+    max_hydrogel_stretch, min_hydrogel_stretch
+        Largest / smallest principal stretch over hydrogel tets (NaN if the mesh has none).
+    min_det_F
+        Smallest ``det F`` over all tets (> 0: no tet inverted).
+    residual_norms
+        Free-DOF residual norm (N) at every Newton iterate, one tuple per accepted load step.
+    timings
+        Seconds: ``assembly`` (incl. line-search evaluations), ``factorization``, ``solve``, ``other``, ``total``.
+    solver
+        Backend, DOFs, nonzeros, factorizations, settings summary.
+    """
+
+    touches: tuple
+    displacement_mm: np.ndarray
+    deformed_mesh: TetMesh
+    forces_N: np.ndarray
+    newton_steps: int
+    load_steps: int
+    step_halvings: int
+    max_hydrogel_stretch: float
+    min_hydrogel_stretch: float
+    min_det_F: float
+    residual_norms: tuple
+    timings: dict
+    solver: dict
+
+    def summary(self) -> dict:
+        """JSON-ready scalars (no fields)."""
+        return {"touches": [t.as_dict() for t in self.touches], "forces_N": self.forces_N.tolist(),
+                "newton_steps": self.newton_steps, "load_steps": self.load_steps,
+                "step_halvings": self.step_halvings, "max_hydrogel_stretch": self.max_hydrogel_stretch,
+                "min_hydrogel_stretch": self.min_hydrogel_stretch, "min_det_F": self.min_det_F,
+                "max_displacement_mm": float(np.abs(self.displacement_mm).max()),
+                "seconds": self.timings["total"], "timings": dict(self.timings), "solver": dict(self.solver)}
+
+    def to_vtu(self, path) -> None:
+        """Write the deformed mesh with ``displacement_mm`` (points) and ``det_F`` (tets) for ParaView."""
+        self.deformed_mesh.to_vtu(path, point_data={"displacement_mm": self.displacement_mm},
+                                  cell_data={"det_F": self.det_F()})
+
+    def det_F(self) -> np.ndarray:
+        """Volume ratio ``det F`` of every tet, shape ``(M,)``."""
+        ref = self.deformed_mesh.with_nodes(self.deformed_mesh.nodes_mm - self.displacement_mm)
+        return self.deformed_mesh.tet_volumes_mm3() / ref.tet_volumes_mm3()
