@@ -164,6 +164,8 @@ class NeoHookeanOperator:
         self._build_pattern()
         M = mesh.n_tets
         self._tet_dofs = (3 * self.tets[:, :, None] + np.arange(3)).reshape(M, 12)
+        d = self._tet_dofs.ravel()
+        self._scatter_dofs = sp.csr_matrix((np.ones(len(d)), (d, np.arange(len(d)))), shape=(self.n_dofs, len(d)))
         self._set_geometry(self.grad, self.vol)
         log.debug("operator: %d tets, %d patches (max %d nodes), %d dofs, %d upper nonzeros",
                   M, P, self._kmax, self.n_dofs, self.nnz)
@@ -294,16 +296,18 @@ class NeoHookeanOperator:
         if not residual:
             return Evaluation(energy, None, None, min_J, min_Jbar)
         cof /= J[:, None, None]  # now F^-T
-        f = np.matmul(self.grad, F.transpose(0, 2, 1))  # f_a = F g_a
-        h = np.matmul(self.grad, cof.transpose(0, 2, 1))  # h_a = F^-T g_a: spatial hat-function gradients
         c = self.vol * self.mu * Jm23
         Up = 0.5 * kap * (Jbar - 1.0 / Jbar)
         w = Up[self.patch] * v_e  # U'(Jbar) v_e per tet
-        q = f - (I1 / 6.0)[:, None, None] * h
-        r_tet = c[:, None, None] * (q - (I1 / 6.0)[:, None, None] * h) + w[:, None, None] * h
-        R = np.bincount(self._tet_dofs.ravel(), r_tet.ravel(), minlength=self.n_dofs)
+        # r_a = c (f_a - I1/3 h_a) + w h_a = P g_a with the volume-weighted Piola stress P below (one product)
+        P = c[:, None, None] * F + (w - c * I1 / 3.0)[:, None, None] * cof
+        r_tet = np.matmul(self.grad, P.transpose(0, 2, 1))
+        R = self._scatter_dofs @ r_tet.ravel()
         if not tangent:
             return Evaluation(energy, R, None, min_J, min_Jbar)
+        f = np.matmul(self.grad, F.transpose(0, 2, 1))  # f_a = F g_a
+        h = np.matmul(self.grad, cof.transpose(0, 2, 1))  # h_a = F^-T g_a: spatial hat-function gradients
+        q = f - (I1 / 6.0)[:, None, None] * h
         M = len(self.tets)
         f32 = self._ft  # see ``precision``
         h12 = h.reshape(M, 12).astype(f32)
