@@ -41,7 +41,9 @@ class IndentSettings:
     volumetric
         ``"patch"`` (mean dilatation per hexahedral cell, locking-free, default) or ``"element"`` (plain P1).
     max_step_mm
-        Largest depth increment of the deepest touch per load step (mm).
+        Largest depth increment of the deepest touch per load step (mm). 0.75 measured fastest of 0.5, 0.6,
+        0.67, 0.75, 0.8 and 1.0 on the benchmark punch and two sets of nine random phantoms (smaller steps
+        need fewer iterations each: fewer inverted trial states near the punch rim).
     min_step_mm
         Step halving gives up below this increment (mm).
     max_newton
@@ -76,7 +78,7 @@ class IndentSettings:
     in_plane: str = "bonded"
     punch_edge: str = "conforming"
     volumetric: str = "patch"
-    max_step_mm: float = 1.0
+    max_step_mm: float = 0.75
     min_step_mm: float = 0.01
     max_newton: int = 12
     rtol: float = 1e-6
