@@ -243,7 +243,11 @@ class IndentationSolver:
             if len(norms) > first + 3 and r_free > 1e3 * min(norms[first + 1:]):
                 raise _StepFailed("residual diverging", r_free, ev.min_J)
             stalled = since >= s.max_bfgs or (since >= 2 and r_free > 0.5 * norms[-3])
-            exact = s.method == "newton" or not fresh or stalled or refactor_next
+            # Newton: the load increment of a new step goes through the factorization of the last iterate of
+            # the previous step (its tangent differs from the converged one by O(residual)): one factorization
+            # fewer per load step
+            reuse = s.method == "newton" and it == 0 and fresh and bool(np.any(jump))
+            exact = (s.method == "newton" and not reuse) or not fresh or stalled or refactor_next
             if exact:
                 if ev.data is None:
                     ev = self._evaluate(u, tangent=True)
