@@ -40,6 +40,31 @@ def design_from_args(args: argparse.Namespace) -> LatticeDesign:
     return LatticeDesign(**given)
 
 
+def add_touch_args(group) -> None:
+    """``--touch`` (repeatable) and the indenter options, shared by ``indent`` and ``simulate``."""
+    from ..mechanics import IndentSettings
+    from ..mechanics.indenters import IN_PLANE, INDENTERS, PUNCH_EDGES
+
+    d = IndentSettings()
+    group.add_argument("--touch", action="append", required=True, metavar="X,Y,R,D",
+                       help="indenter centre x, y, radius and depth in mm (repeat for up to three touches)")
+    group.add_argument("--indenter", choices=INDENTERS, default=d.indenter,
+                       help=f"indenter tip (default {d.indenter})")
+    group.add_argument("--in-plane", choices=IN_PLANE, default=d.in_plane,
+                       help=f"flat punch: in-plane condition under the punch (default {d.in_plane})")
+    group.add_argument("--punch-edge", choices=PUNCH_EDGES, default=d.punch_edge,
+                       help="flat punch rim: top nodes moved onto it (conforming) or the nodes inside (nodal); "
+                            f"default {d.punch_edge}")
+
+
+def touches_from_args(args: argparse.Namespace, design: LatticeDesign) -> tuple:
+    """The ``--touch`` values, parsed and checked against ``design`` (before any meshing or solving)."""
+    from ..touches import Touch, validate_touches
+
+    touches = [Touch.parse(text, name=f"--touch #{i + 1}") for i, text in enumerate(args.touch)]
+    return validate_touches(design, touches)
+
+
 def add_mesh_args(parser: argparse.ArgumentParser) -> None:
     from ..mesh import MESHERS, MeshSettings
 

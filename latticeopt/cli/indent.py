@@ -4,25 +4,26 @@ from __future__ import annotations
 
 import time
 
-from ._common import add_design_args, add_mesh_args, design_from_args, emit_json, mesh_from_args, parse_output
+from ._common import (
+    add_design_args,
+    add_mesh_args,
+    add_touch_args,
+    design_from_args,
+    emit_json,
+    mesh_from_args,
+    parse_output,
+    touches_from_args,
+)
 
 
 def register(sub) -> None:
-    from ..mechanics.indenters import IN_PLANE, INDENTERS, PUNCH_EDGES
-
     p = sub.add_parser("indent", help="hyperelastic indentation of a design",
                        description="Indent the top surface with rigid round indenters (neo-Hookean stack, "
                                    "bottom fixed, sides free) and report forces, Newton steps and stretch.")
     add_design_args(p)
     add_mesh_args(p)
     g = p.add_argument_group("indentation")
-    g.add_argument("--touch", action="append", required=True, metavar="X,Y,R,D",
-                   help="indenter centre x, y, radius and depth in mm (repeat for up to three touches)")
-    g.add_argument("--indenter", choices=INDENTERS, default="flat", help="indenter tip (default flat punch)")
-    g.add_argument("--in-plane", choices=IN_PLANE, default="bonded",
-                   help="flat punch: in-plane condition under the punch (default bonded)")
-    g.add_argument("--punch-edge", choices=PUNCH_EDGES, default="conforming",
-                   help="flat punch rim: top nodes moved onto it (conforming, default) or the nodes inside (nodal)")
+    add_touch_args(g)
     g.add_argument("--max-step", type=float, default=None, help="largest depth increment per load step (mm)")
     p.add_argument("-o", "--output", default=None, help="write the deformed mesh as VTU (ParaView)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of text")
@@ -31,12 +32,10 @@ def register(sub) -> None:
 
 def run_indent(args) -> int:
     from ..mechanics import IndentSettings, indent
-    from ..touches import Touch, validate_touches
 
     out = parse_output(args.output, (".vtu",))
-    touches = [Touch.parse(text, name=f"--touch #{i + 1}") for i, text in enumerate(args.touch)]
     design = design_from_args(args)
-    touches = validate_touches(design, touches)  # before meshing or solving
+    touches = touches_from_args(args, design)
     extra = {} if args.max_step is None else {"max_step_mm": args.max_step}
     settings = IndentSettings(indenter=args.indenter, in_plane=args.in_plane, punch_edge=args.punch_edge,
                               **extra)

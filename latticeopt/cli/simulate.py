@@ -4,12 +4,19 @@ from __future__ import annotations
 
 import time
 
-from ._common import add_design_args, add_mesh_args, design_from_args, emit_json, mesh_settings_from_args
+from ._common import (
+    add_design_args,
+    add_mesh_args,
+    add_touch_args,
+    design_from_args,
+    emit_json,
+    mesh_settings_from_args,
+    touches_from_args,
+)
 
 
 def register(sub) -> None:
     from ..coupled import PhysicsSettings
-    from ..mechanics.indenters import IN_PLANE, INDENTERS, PUNCH_EDGES
 
     d = PhysicsSettings()
     p = sub.add_parser("simulate", help="coupled indentation + electrics of one phantom: V_rel",
@@ -18,12 +25,7 @@ def register(sub) -> None:
     add_design_args(p)
     add_mesh_args(p)
     g = p.add_argument_group("phantom and physics")
-    g.add_argument("--touch", action="append", required=True, metavar="X,Y,R,D",
-                   help="indenter centre x, y, radius and depth in mm (repeat for up to three touches)")
-    g.add_argument("--indenter", choices=INDENTERS, default=d.indenter, help="indenter tip (default flat punch)")
-    g.add_argument("--in-plane", choices=IN_PLANE, default=d.in_plane, help="flat punch in-plane condition")
-    g.add_argument("--punch-edge", choices=PUNCH_EDGES, default=d.punch_edge,
-                   help="flat punch rim: conforming (default) or nodal")
+    add_touch_args(g)
     g.add_argument("--sigma", type=float, default=d.sigma_S_per_m, help="hydrogel conductivity (S/m)")
     g.add_argument("--contact-impedance", type=float, default=d.contact_impedance_ohm_m2,
                    help="electrode contact impedance (ohm m^2)")
@@ -33,11 +35,9 @@ def register(sub) -> None:
 
 def run_simulate(args) -> int:
     from ..coupled import CoupledModel, PhysicsSettings
-    from ..touches import Touch, validate_touches
 
-    touches = [Touch.parse(text, name=f"--touch #{i + 1}") for i, text in enumerate(args.touch)]
     design = design_from_args(args)
-    touches = validate_touches(design, touches)  # before meshing or solving
+    touches = touches_from_args(args, design)
     physics = PhysicsSettings(indenter=args.indenter, in_plane=args.in_plane, punch_edge=args.punch_edge,
                               sigma_S_per_m=args.sigma,
                               contact_impedance_ohm_m2=args.contact_impedance)
