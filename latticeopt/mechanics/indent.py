@@ -123,9 +123,10 @@ class IndentationSolver:
         if s.indenter == "flat" and s.punch_edge == "conforming":
             ref = conform_punch_edges(self.mesh.nodes_mm, self.mesh.tets, self.mesh.facets["top"], self._movable,
                                       touches)
+        n_moved = int(np.count_nonzero(np.any(ref != self.mesh.nodes_mm, axis=1)))
+        if n_moved:  # a new reference geometry: its own operator and undeformed tangent
             self._op = self.op.with_reference(ref)
             ev = self._evaluate(np.zeros_like(ref))
-        n_moved = int(np.count_nonzero(np.any(ref != self.mesh.nodes_mm, axis=1)))
         cons = Constraints(ref, self.top_nodes, self.bottom_nodes, touches, s.indenter, s.in_plane)
         self._n_solves = self._n_factor = 0
         self._factor_isD = None  # Dirichlet set of the current factorization (none yet for this phantom)

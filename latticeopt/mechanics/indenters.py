@@ -8,11 +8,10 @@ one for Newton) or ``"frictionless"`` (``u_x, u_y`` free; the assumption of Haye
 Conforming punch edge (default for the flat punch, :func:`conform_punch_edges`): before the solve, the
 reference positions of the top-surface nodes near each disc's rim are moved radially onto the rim (and
 their neighbours stretched to make room), so the constrained patch is a polygon inscribed in the circle
-instead of a staircase of whole cells. Without it the contact area, the force and V_rel jump by a few
-percent whenever a node enters or leaves a disc as the centre or radius moves; with it they move almost
-continuously (``tests/test_mechanics_indent.py``), which is what an optimizer and a mesh-convergence study
-need. Only nodes of the silicone top layer move (never hydrogel nodes, so the electrics sees the mesh it was
-built on) and never nodes on the sensor's rim.
+instead of a staircase of whole cells: the held patch is closer to the disc (``tests/test_mechanics_indent.py``)
+and V_rel converges under mesh refinement (README). It does not make results smooth in the touch's radius or
+the design: a node joining the rim still moves them by a few percent. Only nodes of the silicone top layer
+move (never hydrogel nodes, so the electrics sees the mesh it was built on) and never nodes on the sensor's rim.
 
 Spherical tip (option): a hemispherical end of the same radius ``r``. Frictionless unilateral contact on
 the vertical displacement of the top nodes inside the disc: ``u_z <= ubar(rho) = -(lam d - (r - sqrt(r^2 -
@@ -26,6 +25,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import ParameterError
+from ..mesh.tetmesh import tet_volumes
 from ..touches import Touch
 
 INDENTERS = ("flat", "sphere")
@@ -73,8 +73,9 @@ def conform_punch_edges(nodes_mm: np.ndarray, tets: np.ndarray, top_tris: np.nda
     np.minimum.at(h, edges[:, 0], length)
     np.minimum.at(h, edges[:, 1], length)
     free = movable & np.isfinite(h)
+    smallest_resolved_mm = 2.0 * float(np.median(length))
     for t in touches:
-        if t.radius_mm < 2.0 * np.median(length):
+        if t.radius_mm < smallest_resolved_mm:
             continue  # a disc a few cells across is not resolved by moving nodes; it keeps the nodal rule
         d = out[:, :2] - (t.x_mm, t.y_mm)
         rho = np.hypot(d[:, 0], d[:, 1])
@@ -92,19 +93,14 @@ def conform_punch_edges(nodes_mm: np.ndarray, tets: np.ndarray, top_tris: np.nda
     moved = np.flatnonzero(np.any(out != nodes_mm, axis=1))
     if len(moved):
         near = np.flatnonzero(np.isin(tets, moved).any(axis=1))
-        vol0 = _volumes(nodes_mm, tets[near])
+        vol0 = tet_volumes(nodes_mm, tets[near])
         for _ in range(10):
-            bad = near[_volumes(out, tets[near]) < 0.1 * vol0]
+            bad = near[tet_volumes(out, tets[near]) < 0.1 * vol0]
             if not len(bad):
                 break
             back = np.intersect1d(tets[bad].ravel(), moved)
             out[back] = nodes_mm[back]
     return out
-
-
-def _volumes(nodes: np.ndarray, tets: np.ndarray) -> np.ndarray:
-    x = nodes[tets]
-    return np.einsum("ij,ij->i", np.cross(x[:, 1] - x[:, 0], x[:, 2] - x[:, 0]), x[:, 3] - x[:, 0]) / 6.0
 
 
 class Constraints:
