@@ -3,27 +3,14 @@
 import numpy as np
 import pytest
 
-from latticeopt import LatticeDesign, MeshSettings, mesh_design
 from latticeopt.errors import ConvergenceError, ParameterError
 from latticeopt.mechanics import IndentationSolver, IndentSettings, indent
 from latticeopt.touches import Touch
 
-DESIGN = LatticeDesign(size_mm=50.0, width_mm=4.0, thickness_mm=3.0)
 
-
-@pytest.fixture(scope="module")
-def mesh():
-    return mesh_design(DESIGN, MeshSettings(size_mm=2.5), cache_dir=False)
-
-
-@pytest.fixture(scope="module")
-def solver(mesh):
-    return IndentationSolver(mesh, IndentSettings())
-
-
-def test_full_newton_converges_quadratically(mesh):
+def test_full_newton_converges_quadratically(stack_mesh):
     # exact Newton: double-precision tangent and factorization
-    res = IndentationSolver(mesh, IndentSettings(method="newton", rtol=1e-10, precision="double")).solve(
+    res = IndentationSolver(stack_mesh, IndentSettings(method="newton", rtol=1e-10, precision="double")).solve(
         [(25, 25, 6.25, 1.0)])
     r = np.array(res.residual_norms[-1][1:])  # after the prescribed-increment iteration
     rho = r / r[0]
@@ -35,42 +22,41 @@ def test_full_newton_converges_quadratically(mesh):
     assert rho[len(pairs)] < 1e-5, r
 
 
-def test_bfgs_and_newton_reach_the_same_state(mesh, solver):
+def test_bfgs_and_newton_reach_the_same_state(stack_mesh, stack_solver):
     touch = [(25, 25, 6.25, 1.5)]
-    a = IndentationSolver(mesh, IndentSettings(method="bfgs")).solve(touch)
-    b = solver.solve(touch)
-    assert solver.settings.method == "newton"
+    a = IndentationSolver(stack_mesh, IndentSettings(method="bfgs")).solve(touch)
+    b = stack_solver.solve(touch)
+    assert stack_solver.settings.method == "newton"
     assert a.forces_N[0] == pytest.approx(b.forces_N[0], rel=1e-5)
     assert np.abs(a.displacement_mm - b.displacement_mm).max() < 1e-4
-    assert a.solver["n_factorizations"] < b.solver["n_factorizations"]
+    assert a.stack_solver["n_factorizations"] < b.stack_solver["n_factorizations"]
 
 
-def test_single_precision_tangent_reaches_the_double_precision_state(mesh, solver):
+def test_single_precision_tangent_reaches_the_double_precision_state(stack_mesh, stack_solver):
     """The float32 tangent and factorization only steer the iterations: same converged state to rtol."""
     touch = [(25, 25, 6.25, 1.5)]
-    a = solver.solve(touch)
-    double = IndentationSolver(mesh, IndentSettings(precision="double"))
+    a = stack_solver.solve(touch)
+    double = IndentationSolver(stack_mesh, IndentSettings(precision="double"))
     b = double.solve(touch)
-    assert solver.linear.precision == "single" and double.linear.precision == "double"
+    assert stack_solver.linear.precision == "single" and double.linear.precision == "double"
     assert a.forces_N[0] == pytest.approx(b.forces_N[0], rel=1e-5)
     assert np.abs(a.displacement_mm - b.displacement_mm).max() < 1e-4
 
 
-def test_conforming_rim_recovers_the_disc_area():
+def test_conforming_rim_recovers_the_disc_area(stack_mesh):
     """The constrained patch (convex hull of the held nodes) of a conforming rim is close to pi R^2; the
     nodal staircase falls short by about half a cell of radius (independent reference: the disc's area).
-    Measured on this 2.5 mm mesh: mean area error 12.5 % conforming, 22 % nodal."""
+    Measured on this 2.5 mm stack_mesh: mean area error 12.5 % conforming, 22 % nodal."""
     from scipy.spatial import ConvexHull
 
-    mesh = mesh_design(DESIGN, MeshSettings(size_mm=2.5), cache_dir=False)
     errors = {}
     for edge in ("conforming", "nodal"):
-        solver = IndentationSolver(mesh, IndentSettings(punch_edge=edge))
+        stack_solver = IndentationSolver(stack_mesh, IndentSettings(punch_edge=edge))
         err = []
         for r in np.linspace(6.0, 7.2, 7):
-            res = solver.solve([(25.3, 24.6, r, 0.05)])
+            res = stack_solver.solve([(25.3, 24.6, r, 0.05)])
             ref = res.deformed_mesh.nodes_mm - res.displacement_mm
-            held = np.unique(mesh.facets["top"])
+            held = np.unique(stack_mesh.facets["top"])
             held = held[np.hypot(ref[held, 0] - 25.3, ref[held, 1] - 24.6) <= r * (1 + 1e-9)]
             err.append(ConvexHull(ref[held, :2]).volume / (np.pi * r * r) - 1.0)
         errors[edge] = np.abs(err).mean()
@@ -78,51 +64,51 @@ def test_conforming_rim_recovers_the_disc_area():
     assert errors["conforming"] < 0.15
 
 
-def test_force_rises_monotonically_with_depth(solver):
+def test_force_rises_monotonically_with_depth(stack_solver):
     depths = (0.3, 1.2, 3.0)
-    forces = [solver.solve([(25, 25, 7.5, d)]).forces_N[0] for d in depths]
+    forces = [stack_solver.solve([(25, 25, 7.5, d)]).forces_N[0] for d in depths]
     assert np.all(np.diff(forces) > 0), forces
     assert forces[0] > 0
     # stiffening at large strain: the secant stiffness grows with depth
     assert forces[-1] / depths[-1] > forces[0] / depths[0]
 
 
-def test_centred_punch_gives_a_symmetric_field(mesh, solver):
-    # the grid mesher mirrors its Kuhn split about the centre lines, so the mesh has the square's symmetries
+def test_centred_punch_gives_a_symmetric_field(stack_mesh, stack_solver):
+    # the grid mesher mirrors its Kuhn split about the centre lines, so the stack_mesh has the square's symmetries
     # when the cell counts are even: then a centred punch must give an exactly symmetric field
-    X = mesh.nodes_mm
+    X = stack_mesh.nodes_mm
     key = np.round(X, 6)
     index = {tuple(k): i for i, k in enumerate(key)}
     maps = {"mirror x": (lambda k: (round(50 - k[0], 6), k[1], k[2]), np.array([-1, 1, 1]), [0, 1, 2]),
             "swap x, y": (lambda k: (k[1], k[0], k[2]), np.array([1, 1, 1]), [1, 0, 2])}
-    res = solver.solve([(25, 25, 7.5, 2.0)])
+    res = stack_solver.solve([(25, 25, 7.5, 2.0)])
     u = res.displacement_mm
     for name, (f, sign, comp) in maps.items():
         perm = np.array([index[f(k)] for k in key])
-        tets = {tuple(sorted(t)) for t in perm[mesh.tets].tolist()}
-        assert tets == {tuple(sorted(t)) for t in mesh.tets.tolist()}, f"mesh not invariant under {name}"
+        tets = {tuple(sorted(t)) for t in perm[stack_mesh.tets].tolist()}
+        assert tets == {tuple(sorted(t)) for t in stack_mesh.tets.tolist()}, f"stack_mesh not invariant under {name}"
         assert np.abs(u[perm][:, comp] * sign - u).max() < 1e-6 * np.abs(u).max(), name
     assert np.isclose(u[:, 2].min(), -2.0)
 
 
-def test_outputs_keep_labels_and_electrodes_and_write_vtu(mesh, solver, tmp_path):
-    res = solver.solve([Touch(25, 25, 6.25, 2.0)])
+def test_outputs_keep_labels_and_electrodes_and_write_vtu(stack_mesh, stack_solver, tmp_path):
+    res = stack_solver.solve([Touch(25, 25, 6.25, 2.0)])
     d = res.deformed_mesh
-    assert np.array_equal(d.region, mesh.region) and d.facets.keys() == mesh.facets.keys()
-    assert all(np.array_equal(d.facets[k], mesh.facets[k]) for k in mesh.facets)
+    assert np.array_equal(d.region, stack_mesh.region) and d.facets.keys() == stack_mesh.facets.keys()
+    assert all(np.array_equal(d.facets[k], stack_mesh.facets[k]) for k in stack_mesh.facets)
     # the conforming rim moves only silicone top nodes near the rim, in-plane, onto or towards the circle
     ref = d.nodes_mm - res.displacement_mm
-    moved = np.flatnonzero(np.any(np.abs(ref - mesh.nodes_mm) > 1e-12, axis=1))
-    assert len(moved) == res.solver["moved_reference_nodes"] > 0
-    assert set(moved) <= set(np.unique(mesh.facets["top"]))
-    assert not set(moved) & set(mesh.tets[mesh.region == 1].ravel())
-    assert np.allclose(ref[:, 2], mesh.nodes_mm[:, 2], rtol=0, atol=1e-12)
-    rho_old, rho_new = (np.hypot(x[moved, 0] - 25, x[moved, 1] - 25) for x in (mesh.nodes_mm, ref))
+    moved = np.flatnonzero(np.any(np.abs(ref - stack_mesh.nodes_mm) > 1e-12, axis=1))
+    assert len(moved) == res.stack_solver["moved_reference_nodes"] > 0
+    assert set(moved) <= set(np.unique(stack_mesh.facets["top"]))
+    assert not set(moved) & set(stack_mesh.tets[stack_mesh.region == 1].ravel())
+    assert np.allclose(ref[:, 2], stack_mesh.nodes_mm[:, 2], rtol=0, atol=1e-12)
+    rho_old, rho_new = (np.hypot(x[moved, 0] - 25, x[moved, 1] - 25) for x in (stack_mesh.nodes_mm, ref))
     assert np.all(np.abs(rho_old - 6.25) < 0.75 * 2.5) and np.all(np.abs(rho_new - 6.25) < 0.75 * 2.5)
     assert np.count_nonzero(np.isclose(rho_new, 6.25)) >= 8
     assert res.min_det_F > 0 and np.all(res.det_F() > 0)
     assert res.max_hydrogel_stretch > 1.0 > res.min_hydrogel_stretch > 0
-    bottom = np.unique(mesh.facets["bottom"])
+    bottom = np.unique(stack_mesh.facets["bottom"])
     assert np.abs(res.displacement_mm[bottom]).max() == 0.0
     assert set(res.timings) >= {"assembly", "factorization", "solve", "total"}
     path = tmp_path / "indent.vtu"
@@ -134,32 +120,32 @@ def test_outputs_keep_labels_and_electrodes_and_write_vtu(mesh, solver, tmp_path
     assert "displacement_mm" in back.point_data
 
 
-def test_bad_touches_are_rejected_before_any_solve(mesh, monkeypatch):
+def test_bad_touches_are_rejected_before_any_solve(stack_mesh, monkeypatch):
     import importlib
 
     mod = importlib.import_module("latticeopt.mechanics.indent")
 
     def boom(*args, **kwargs):
-        raise AssertionError("the solver was built for a bad touch")
+        raise AssertionError("the stack_solver was built for a bad touch")
 
     monkeypatch.setattr(mod.IndentationSolver, "__init__", boom)
     for touches, name in [([(45, 25, 7.5, 1)], "touches[0].x_mm"), ([(25, 25, 7.5, 9)], "touches[0].depth_mm"),
                           ([(20, 25, 6, 1), (28, 25, 6, 1)], "touches[1] (x_mm, y_mm)"),
                           ([(25, 25, float("nan"), 1)], "touches[0].radius_mm")]:
         with pytest.raises(ParameterError) as err:
-            indent(mesh, touches)
+            indent(stack_mesh, touches)
         assert err.value.name == name
 
 
-def test_indenter_smaller_than_the_mesh_is_a_parameter_error(solver):
+def test_indenter_smaller_than_the_mesh_is_a_parameter_error(stack_solver):
     with pytest.raises(ParameterError, match=r"touches\[0\]\.radius_mm"):
-        solver.solve([(24.3, 24.3, 0.2, 1.0)])
+        stack_solver.solve([(24.3, 24.3, 0.2, 1.0)])
 
 
-def test_convergence_error_names_step_depth_and_residual(mesh):
+def test_convergence_error_names_step_depth_and_residual(stack_mesh):
     s = IndentSettings(method="newton", max_newton=1, max_step_mm=4.0, min_step_mm=2.0)
     with pytest.raises(ConvergenceError, match=r"load step 1 from depth 0 mm towards .* residual"):
-        IndentationSolver(mesh, s).solve([(25, 25, 7.5, 4.0)])
+        IndentationSolver(stack_mesh, s).solve([(25, 25, 7.5, 4.0)])
 
 
 def test_settings_are_validated():

@@ -1,0 +1,19 @@
+"""Fixtures shared by the mechanics tests."""
+
+import pytest
+
+from latticeopt import LatticeDesign, MeshSettings, mesh_design
+from latticeopt.mechanics import IndentationSolver, IndentSettings
+
+#: A 50 mm sensor with the default lattice (w = 4, t = 3) on a 2.5 mm grid: small enough for many solves.
+STACK_DESIGN = LatticeDesign(size_mm=50.0, width_mm=4.0, thickness_mm=3.0)
+
+
+@pytest.fixture(scope="session")
+def stack_mesh():
+    return mesh_design(STACK_DESIGN, MeshSettings(size_mm=2.5), cache_dir=False)
+
+
+@pytest.fixture(scope="session")
+def stack_solver(stack_mesh):
+    return IndentationSolver(stack_mesh, IndentSettings())
