@@ -29,7 +29,7 @@ def test_bfgs_and_newton_reach_the_same_state(stack_mesh, stack_solver):
     assert stack_solver.settings.method == "newton"
     assert a.forces_N[0] == pytest.approx(b.forces_N[0], rel=1e-5)
     assert np.abs(a.displacement_mm - b.displacement_mm).max() < 1e-4
-    assert a.stack_solver["n_factorizations"] < b.stack_solver["n_factorizations"]
+    assert a.solver["n_factorizations"] < b.solver["n_factorizations"]
 
 
 def test_single_precision_tangent_reaches_the_double_precision_state(stack_mesh, stack_solver):
@@ -46,15 +46,15 @@ def test_single_precision_tangent_reaches_the_double_precision_state(stack_mesh,
 def test_conforming_rim_recovers_the_disc_area(stack_mesh):
     """The constrained patch (convex hull of the held nodes) of a conforming rim is close to pi R^2; the
     nodal staircase falls short by about half a cell of radius (independent reference: the disc's area).
-    Measured on this 2.5 mm stack_mesh: mean area error 12.5 % conforming, 22 % nodal."""
+    Measured on this 2.5 mm mesh: mean area error 12.5 % conforming, 22 % nodal."""
     from scipy.spatial import ConvexHull
 
     errors = {}
     for edge in ("conforming", "nodal"):
-        stack_solver = IndentationSolver(stack_mesh, IndentSettings(punch_edge=edge))
+        solver = IndentationSolver(stack_mesh, IndentSettings(punch_edge=edge))
         err = []
         for r in np.linspace(6.0, 7.2, 7):
-            res = stack_solver.solve([(25.3, 24.6, r, 0.05)])
+            res = solver.solve([(25.3, 24.6, r, 0.05)])
             ref = res.deformed_mesh.nodes_mm - res.displacement_mm
             held = np.unique(stack_mesh.facets["top"])
             held = held[np.hypot(ref[held, 0] - 25.3, ref[held, 1] - 24.6) <= r * (1 + 1e-9)]
@@ -74,7 +74,7 @@ def test_force_rises_monotonically_with_depth(stack_solver):
 
 
 def test_centred_punch_gives_a_symmetric_field(stack_mesh, stack_solver):
-    # the grid mesher mirrors its Kuhn split about the centre lines, so the stack_mesh has the square's symmetries
+    # the grid mesher mirrors its Kuhn split about the centre lines, so the mesh has the square's symmetries
     # when the cell counts are even: then a centred punch must give an exactly symmetric field
     X = stack_mesh.nodes_mm
     key = np.round(X, 6)
@@ -99,7 +99,7 @@ def test_outputs_keep_labels_and_electrodes_and_write_vtu(stack_mesh, stack_solv
     # the conforming rim moves only silicone top nodes near the rim, in-plane, onto or towards the circle
     ref = d.nodes_mm - res.displacement_mm
     moved = np.flatnonzero(np.any(np.abs(ref - stack_mesh.nodes_mm) > 1e-12, axis=1))
-    assert len(moved) == res.stack_solver["moved_reference_nodes"] > 0
+    assert len(moved) == res.solver["moved_reference_nodes"] > 0
     assert set(moved) <= set(np.unique(stack_mesh.facets["top"]))
     assert not set(moved) & set(stack_mesh.tets[stack_mesh.region == 1].ravel())
     assert np.allclose(ref[:, 2], stack_mesh.nodes_mm[:, 2], rtol=0, atol=1e-12)
@@ -126,7 +126,7 @@ def test_bad_touches_are_rejected_before_any_solve(stack_mesh, monkeypatch):
     mod = importlib.import_module("latticeopt.mechanics.indent")
 
     def boom(*args, **kwargs):
-        raise AssertionError("the stack_solver was built for a bad touch")
+        raise AssertionError("the solver was built for a bad touch")
 
     monkeypatch.setattr(mod.IndentationSolver, "__init__", boom)
     for touches, name in [([(45, 25, 7.5, 1)], "touches[0].x_mm"), ([(25, 25, 7.5, 9)], "touches[0].depth_mm"),

@@ -19,7 +19,7 @@ def test_sphere_presses_less_than_the_flat_punch_and_only_pushes(stack_mesh, sta
     flat = stack_solver.solve([(25, 25, 7.5, 1.5)])
     res = sphere.solve([(25, 25, 7.5, 1.5)])
     assert 0 < res.forces_N[0] < flat.forces_N[0]
-    assert res.stack_solver["contact_nodes"][0] < flat.stack_solver["contact_nodes"][0]
+    assert res.solver["contact_nodes"][0] < flat.solver["contact_nodes"][0]
     deeper = sphere.solve([(25, 25, 7.5, 2.5)])
     assert deeper.forces_N[0] > res.forces_N[0]
-    assert deeper.stack_solver["contact_nodes"][0] >= res.stack_solver["contact_nodes"][0]
+    assert deeper.solver["contact_nodes"][0] >= res.solver["contact_nodes"][0]
