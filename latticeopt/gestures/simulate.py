@@ -36,13 +36,13 @@ import hashlib
 import json
 import logging
 import time
-import zipfile
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 
 from .. import _validate as v
+from .._npzfile import load_npz, save_npz
 from ..errors import ParameterError
 from .trajectories import GESTURES, MAX_TOUCHES, GestureConfig, Trajectory, trajectory
 
@@ -232,28 +232,16 @@ class GestureDataset:
 
     def save(self, path: str | Path) -> Path:
         """Write an ``.npz`` (no pickles; ``info`` as JSON), atomically."""
-        path = Path(path)
-        meta = {"format": DATASET_FORMAT, "format_version": DATASET_VERSION, "info": self.info}
-        tmp = path.with_name(path.name + ".part")
-        with open(tmp, "wb") as fh:
-            np.savez(fh, metadata=np.array(json.dumps(meta)), frames=self.frames, labels=self.labels,
-                     index=self.index, centres_mm=self.centres_mm, radius_mm=self.radius_mm, delta=self.delta)
-        tmp.replace(path)
-        return path
+        return save_npz(path, DATASET_FORMAT, DATASET_VERSION, {"info": self.info},
+                        {"frames": self.frames, "labels": self.labels, "index": self.index,
+                         "centres_mm": self.centres_mm, "radius_mm": self.radius_mm, "delta": self.delta})
 
     @classmethod
     def load(cls, path: str | Path) -> GestureDataset:
-        path = Path(path)
-        try:
-            with np.load(path, allow_pickle=False) as z:
-                meta = json.loads(str(z["metadata"]))
-                if meta.get("format") != DATASET_FORMAT or meta.get("format_version", 0) > DATASET_VERSION:
-                    raise ValueError(f"format {meta.get('format')!r} version {meta.get('format_version')!r}")
-                return cls(z["frames"], z["labels"], z["index"], z["centres_mm"], z["radius_mm"], z["delta"],
-                           meta["info"])
-        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
-            raise ParameterError("dataset", f"a gesture dataset file ({DATASET_FORMAT} version <= "
-                                 f"{DATASET_VERSION})", f"{path}: {type(exc).__name__}: {exc}") from None
+        return load_npz(path, DATASET_FORMAT, DATASET_VERSION,
+                        lambda meta, z: cls(z["frames"], z["labels"], z["index"], z["centres_mm"], z["radius_mm"],
+                                            z["delta"], meta["info"]),
+                        f"a gesture dataset file ({DATASET_FORMAT} version <= {DATASET_VERSION})")
 
 
 def dataset_key(model, per_class: int, seed: int, pool: str, gcfg: GestureConfig, mcfg: MeasurementConfig,

@@ -20,16 +20,14 @@ normalized change ``(sigma - sigma0) / sigma0`` (0 = background, -0.95 to +1 ins
 
 from __future__ import annotations
 
-import json
 import logging
-import os
-import zipfile
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 
 from .. import _validate as v
+from .._npzfile import load_npz, save_npz
 from ..errors import ParameterError
 from ..sensor_model import SensorModel, SensorSimulator
 from .augment import square_symmetries
@@ -186,31 +184,21 @@ class ReconDataset:
                                  f"{model.fingerprint})", f"data of model {self.model_fingerprint}")
 
     def save(self, path: str | Path) -> Path:
-        path = Path(path)
-        meta = {"format": DATASET_FORMAT, "format_version": DATASET_VERSION, "config": asdict(self.config),
-                "model_fingerprint": self.model_fingerprint}
-        tmp = path.with_name(f"{path.name}.{os.getpid()}.part")
-        with open(tmp, "wb") as fh:
-            np.savez(fh, metadata=np.array(json.dumps(meta)), voltages=self.voltages, images=self.images,
-                     touches=self.touches, n_touches=self.n_touches, train=self.train, val=self.val, test=self.test)
-        tmp.replace(path)
-        return path
+        return save_npz(path, DATASET_FORMAT, DATASET_VERSION,
+                        {"config": asdict(self.config), "model_fingerprint": self.model_fingerprint},
+                        {"voltages": self.voltages, "images": self.images, "touches": self.touches,
+                         "n_touches": self.n_touches, "train": self.train, "val": self.val, "test": self.test})
 
     @classmethod
     def load(cls, path: str | Path) -> ReconDataset:
-        path = Path(path)
-        try:
-            with np.load(path, allow_pickle=False) as z:
-                meta = json.loads(str(z["metadata"]))
-                if meta.get("format") != DATASET_FORMAT or meta.get("format_version", 0) > DATASET_VERSION:
-                    raise ValueError(f"format {meta.get('format')!r} version {meta.get('format_version')!r}")
-                cfg = meta["config"]
-                cfg = DatasetConfig(**{k: tuple(x) if isinstance(x, list) else x for k, x in cfg.items()})
-                return cls(z["voltages"], z["images"], z["touches"], z["n_touches"], z["train"], z["val"],
-                           z["test"], cfg, meta["model_fingerprint"])
-        except (OSError, ValueError, KeyError, EOFError, TypeError, zipfile.BadZipFile) as exc:
-            raise ParameterError("dataset", f"a dataset file written by latticeopt recon-train ({DATASET_FORMAT} "
-                                 f"version <= {DATASET_VERSION})", f"{path}: {type(exc).__name__}: {exc}") from None
+        def build(meta, z):
+            cfg = DatasetConfig(**{k: tuple(x) if isinstance(x, list) else x for k, x in meta["config"].items()})
+            return cls(z["voltages"], z["images"], z["touches"], z["n_touches"], z["train"], z["val"], z["test"],
+                       cfg, meta["model_fingerprint"])
+
+        return load_npz(path, DATASET_FORMAT, DATASET_VERSION, build,
+                        f"a dataset file written by latticeopt recon-train ({DATASET_FORMAT} version <= "
+                        f"{DATASET_VERSION})")
 
 
 def generate_dataset(model: SensorModel, config: DatasetConfig | None = None, *, jobs: int = 1,
