@@ -57,7 +57,10 @@ class SymmetricSolver:
         Symmetric; only its upper triangle is read by PARDISO.
     positive_definite
         True for SPD systems (Cholesky-type, PARDISO ``mtype=2``); False for symmetric indefinite ones
-        (``mtype=-2``; saddle points such as mixed u-p mechanics).
+        (``mtype=-2``, Bunch-Kaufman ``LDL^T``; saddle points such as mixed u-p mechanics); ``"auto"``:
+        Cholesky, and ``LDL^T`` for a factorization that meets a non-positive pivot (Newton tangents, SPD
+        near stable equilibria; Cholesky measured 8 % faster to factorize and 25 % faster to solve here).
+        SuperLU ignores it.
     backend
         ``"auto"`` (PARDISO if available), ``"pardiso"`` or ``"scipy"``.
     factorize
@@ -83,27 +86,38 @@ class SymmetricSolver:
         self.n = A.shape[0]
         self.n_factorizations = 0
         self._pattern = None
+        if positive_definite not in (True, False, "auto"):
+            raise ValueError(f"positive_definite: expected True, False or 'auto', got {positive_definite!r}")
+        self._solvers: dict[int, object] = {}
+        self.n_indefinite = 0  # "auto": factorizations that fell back to LDL^T
         if self.backend == "pardiso":
-            import pypardiso
-
             # pypardiso searches the whole environment for mkl_rt on every construction (0.3 s here)
             # unless this variable names it: look in the usual place first, then remember what it found.
             if "PYPARDISO_MKL_RT" not in os.environ:
                 found = sorted(glob.glob(os.path.join(sys.prefix, "lib", "libmkl_rt.so*")))
                 if found:
                     os.environ["PYPARDISO_MKL_RT"] = found[0]
-            mtype = 2 if positive_definite else -2
-            self._ps = pypardiso.PyPardisoSolver(mtype=mtype)
-            os.environ.setdefault("PYPARDISO_MKL_RT", self._ps.libmkl._name)
-            for i, value in _pardiso_parameters(mtype, self.precision == "single").items():
-                self._ps.set_iparm(i, value)
             upper = self._upper(A)
             self._pattern = (upper.indptr.copy(), upper.indices.copy())
-            self._ps._check_A(upper)
-            self._ps.set_phase(11)
-            self._ps._call_pardiso(self._cast(upper), np.zeros((self.n, 1), dtype=self._dtype))
+            self._ps = self._analysed(-2 if positive_definite is False else 2, upper)
         if factorize or self.backend == "scipy":
             self.refactor(A)
+
+    def _analysed(self, mtype: int, upper: sp.csr_matrix):
+        """The PARDISO handle for ``mtype`` with the symbolic analysis of ``upper``'s pattern (made once)."""
+        ps = self._solvers.get(mtype)
+        if ps is None:
+            import pypardiso
+
+            ps = self._solvers[mtype] = pypardiso.PyPardisoSolver(mtype=mtype)
+            os.environ.setdefault("PYPARDISO_MKL_RT", ps.libmkl._name)
+            for i, value in _pardiso_parameters(mtype, self.precision == "single").items():
+                ps.set_iparm(i, value)
+            if upper.dtype == np.float64:  # pypardiso's checks only accept float64 (its own casts are skipped)
+                ps._check_A(upper)
+            ps.set_phase(11)
+            ps._call_pardiso(self._cast(upper), np.zeros((self.n, 1), dtype=self._dtype))
+        return ps
 
     def _cast(self, upper: sp.csr_matrix) -> sp.csr_matrix:
         """``upper`` with values in the factorization's precision (PARDISO reads raw float32 or float64)."""
@@ -141,13 +155,25 @@ class SymmetricSolver:
             upper = self._upper(A)
             same = self._is_stored_pattern(upper)
             self._ps._check_A(upper)
-        if not same:  # new pattern: redo the analysis
+        if not same:  # new pattern: redo the analyses
             self._pattern = (upper.indptr.copy(), upper.indices.copy())
-            self._ps.set_phase(11)
-            self._ps._call_pardiso(self._cast(upper), np.zeros((self.n, 1), dtype=self._dtype))
+            self._solvers.clear()
         self._upper_A = upper = self._cast(upper)
+        mtype = -2 if self.positive_definite is False else 2
+        self._ps = self._analysed(mtype, upper)
         self._ps.set_phase(22)
-        self._ps._call_pardiso(upper, np.zeros((self.n, 1), dtype=self._dtype))
+        if self.positive_definite != "auto":
+            self._ps._call_pardiso(upper, np.zeros((self.n, 1), dtype=self._dtype))
+            return
+        from pypardiso.pardiso_wrapper import PyPardisoError
+
+        try:
+            self._ps._call_pardiso(upper, np.zeros((self.n, 1), dtype=self._dtype))
+        except PyPardisoError:  # a non-positive pivot (error -4): this matrix needs LDL^T
+            self.n_indefinite += 1
+            self._ps = self._analysed(-2, upper)
+            self._ps.set_phase(22)
+            self._ps._call_pardiso(upper, np.zeros((self.n, 1), dtype=self._dtype))
 
     def solve(self, B: np.ndarray) -> np.ndarray:
         """Solve ``A X = B`` for one (shape ``(n,)``) or many (shape ``(n, k)``) right-hand sides."""
@@ -161,9 +187,59 @@ class SymmetricSolver:
         return X.astype(np.float64, copy=False)
 
     def __del__(self):
-        ps = getattr(self, "_ps", None)
-        if ps is not None:
+        for ps in getattr(self, "_solvers", {}).values():
             try:
                 ps.free_memory(everything=True)
             except Exception:  # noqa: BLE001 - interpreter shutdown; nothing to report to
                 pass
+
+
+
+def gmres(matvec, b: np.ndarray, precondition, atol: float, maxiter: int) -> tuple[np.ndarray, int, bool]:
+    """Right-preconditioned GMRES (no restart) for ``A x = b``: minimises the true residual ``|b - A x|``.
+
+    For Newton tangents that may be indefinite, with a factorization of a nearby tangent as ``M``. Gives up
+    early when the residual's geometric rate so far cannot reach ``atol`` within ``maxiter`` iterations (the
+    preconditioner is too stale: a new factorization is cheaper than more iterations).
+
+    Parameters
+    ----------
+    matvec, precondition
+        ``x -> A x`` and ``r -> M^-1 r`` for vectors of shape ``(n,)``.
+    b
+        Right-hand side, shape ``(n,)``.
+    atol
+        Stop when ``|b - A x| <= atol``.
+    maxiter
+        Iterations (preconditioner applications) before giving up.
+
+    Returns
+    -------
+    x, iterations, converged
+        ``x`` is the best iterate found (zeros if none), with shape ``(n,)``.
+    """
+    beta = float(np.linalg.norm(b))
+    if beta <= atol:
+        return np.zeros_like(b), 0, True
+    V = [b / beta]
+    Z = []
+    H = np.zeros((maxiter + 1, maxiter))
+    e1 = np.zeros(maxiter + 1)
+    e1[0] = beta
+    y, res = np.zeros(0), beta
+    for k in range(maxiter):
+        Z.append(precondition(V[k]))
+        w = matvec(Z[k])
+        for j in range(k + 1):  # modified Gram-Schmidt
+            H[j, k] = float(w @ V[j])
+            w -= H[j, k] * V[j]
+        H[k + 1, k] = float(np.linalg.norm(w))
+        y = np.linalg.lstsq(H[: k + 2, : k + 1], e1[: k + 2], rcond=None)[0]
+        res = float(np.linalg.norm(H[: k + 2, : k + 1] @ y - e1[: k + 2]))
+        rate = (res / beta) ** (1.0 / (k + 1))
+        done = res <= atol or H[k + 1, k] <= 1e-14 * beta
+        if done or k + 1 == maxiter or (k >= 2 and res * rate ** (maxiter - k - 1) > atol):
+            x = np.asarray(Z[: k + 1]).T @ y
+            return x, k + 1, bool(res <= atol)
+        V.append(w / H[k + 1, k])
+    raise AssertionError("unreachable")  # pragma: no cover

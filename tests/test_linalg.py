@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from latticeopt.linalg import SymmetricSolver, pardiso_available
+from latticeopt.linalg import SymmetricSolver, gmres, pardiso_available
 
 pardiso = pytest.mark.skipif(not pardiso_available(), reason="pypardiso not installed")
 
@@ -67,3 +67,45 @@ def test_bad_arguments_are_named(system):
         SymmetricSolver(A, precision="half")
     with pytest.raises(ValueError, match="backend"):
         SymmetricSolver(A, backend="mumps")
+
+
+@pardiso
+def test_auto_definiteness_falls_back_to_ldlt_only_when_needed(system):
+    """``positive_definite="auto"``: Cholesky for the SPD Laplacian, LDL^T once it is shifted indefinite
+    (eigenvalues of the 12^3 Laplacian lie in (0.1, 12.1), so a shift of -3 makes it indefinite)."""
+    A, b = system
+    solver = SymmetricSolver(A, positive_definite="auto", backend="pardiso")
+    assert solver.n_indefinite == 0
+    indefinite = sp.csr_matrix(A - 3.0 * sp.identity(A.shape[0]))
+    for M, n_indefinite in ((indefinite, 1), (A, 1), (indefinite, 2)):
+        solver.refactor(M)
+        x = solver.solve(b)
+        assert solver.n_indefinite == n_indefinite
+        assert np.linalg.norm(M @ x - b) <= 1e-10 * np.linalg.norm(b)
+
+
+@pytest.mark.parametrize("shift", [0.1, -3.0])
+def test_gmres_with_a_nearby_factorization_reaches_the_tolerance(system, shift):
+    """GMRES on A preconditioned by the factorization of a perturbed A (SPD and indefinite): the true
+    residual meets atol, and the solution matches a direct solve."""
+    A, b = system
+    A = sp.csr_matrix(A + (shift - 0.1) * sp.identity(A.shape[0]))
+    rng = np.random.default_rng(1)
+    near = sp.csr_matrix(A + sp.diags(1e-3 * rng.random(A.shape[0])))
+    M = SymmetricSolver(near, positive_definite=False, backend="scipy")
+    rhs = b[:, 0]
+    atol = 1e-8 * np.linalg.norm(rhs)
+    x, its, ok = gmres(lambda v: A @ v, rhs, lambda r: M.solve(r), atol, 30)
+    assert ok and its < 30
+    assert np.linalg.norm(A @ x - rhs) <= 1.01 * atol
+    assert np.abs(x - SymmetricSolver(A, positive_definite=False, backend="scipy").solve(rhs)).max() \
+        <= 1e-6 * np.abs(x).max()
+
+
+def test_gmres_gives_up_early_when_the_rate_cannot_reach_the_tolerance(system):
+    """Unpreconditioned GMRES on the ill-conditioned Laplacian: after a few iterations the geometric rate
+    cannot reach 1e-12 within the budget, so it stops before maxiter and says it did not converge."""
+    A, b = system
+    x, its, ok = gmres(lambda v: A @ v, b[:, 0], lambda r: r, 1e-12 * np.linalg.norm(b[:, 0]), 50)
+    assert not ok and 3 <= its < 50
+    assert np.linalg.norm(A @ x - b[:, 0]) < np.linalg.norm(b[:, 0])  # the best iterate still helps

@@ -37,6 +37,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..mesh.tetmesh import TetMesh
+from ._kernels import patch_tangents, tet_tangents
 from .materials import Materials
 
 log = logging.getLogger(__name__)
@@ -133,18 +134,11 @@ class NeoHookeanOperator:
         Neo-Hookean parameters per region.
     volumetric
         ``"patch"`` (mean dilatation per hexahedral cell, default) or ``"element"`` (plain P1).
-    precision
-        ``"double"`` (default) or ``"single"``: arithmetic of the tet-pair tangent terms (the residual and
-        energy are always float64). Single precision halves the memory traffic of the costliest part of the
-        tangent; its relative error (~1e-7) is far below that of a single-precision factorization.
     """
 
-    def __init__(self, mesh: TetMesh, materials: Materials, volumetric: str = "patch", precision: str = "double"):
+    def __init__(self, mesh: TetMesh, materials: Materials, volumetric: str = "patch"):
         if volumetric not in VOLUMETRIC:
             raise ValueError(f"volumetric: expected one of {VOLUMETRIC}, got {volumetric!r}")
-        if precision not in ("double", "single"):
-            raise ValueError(f"precision: expected one of ('double', 'single'), got {precision!r}")
-        self._ft = np.float32 if precision == "single" else np.float64
         self.volumetric = volumetric
         self.n_nodes = mesh.n_nodes
         self.n_dofs = 3 * mesh.n_nodes
@@ -176,9 +170,6 @@ class NeoHookeanOperator:
         P = self.n_patches
         self.patch_vol = np.bincount(self.patch, vol, minlength=P)
         self.patch_kappa = np.bincount(self.patch, self._kappa_tet * vol, minlength=P) / self.patch_vol
-        G = np.einsum("eaj,ebj->eab", grad, grad).reshape(len(vol), 16)
-        la, li, lb, lk = self._tet_pair_parts
-        self._G_delta = (G[:, 4 * la + lb] * (li == lk)).astype(self._ft)
 
     def with_reference(self, nodes_mm: np.ndarray) -> NeoHookeanOperator:
         """The same operator (pattern, maps, materials shared) on moved reference nodes, same topology."""
@@ -225,24 +216,15 @@ class NeoHookeanOperator:
         self.indices = cols.astype(np.int64)
         self.rows = rows
         self.diag_pos = np.searchsorted(keys, np.arange(n) * (n + 1))
-        # tet blocks: 78 upper pairs of the 12 local dofs, mapped to their slot in the patch block
+        # tet blocks: 78 upper pairs of the 12 local dofs (row-major), mapped to their slot in the patch block;
+        # padding of the patch blocks goes to the spare slot ``nnz``, which is dropped
         pi, pj = _upper_pairs(12)
         la, li, lb, lk = pi // 3, pi % 3, pj // 3, pj % 3
-        self._tet_pair_parts = (la, li, lb, lk)
-        self._tet_pairs = (pi, pj, 3 * lb + li, 3 * la + lk)
         r = 3 * self._tet_slot[:, la] + li
         c = 3 * self._tet_slot[:, lb] + lk
         r, c = np.minimum(r, c), np.maximum(r, c)
         local = r * nk - r * (r - 1) // 2 + (c - r)
-        # Scatter matrices from per-tet / per-patch pair values to the CSR values (a sparse product is about
-        # twice as fast as np.bincount here); padding of the patch blocks goes to row nnz, which is dropped.
-        self._scatter_tet = self._scatter(self._patch_map.ravel()[self.patch[:, None] * len(qi) + local].ravel(),
-                                          self._ft)
-        self._scatter_patch = self._scatter(self._patch_map.ravel(), np.float64)
-
-    def _scatter(self, slot: np.ndarray, dtype) -> sp.csr_matrix:
-        keep = np.flatnonzero(slot < self.nnz)
-        return sp.csr_matrix((np.ones(len(keep), dtype), (slot[keep], keep)), shape=(self.nnz, len(slot)))
+        self._tet_slots = np.ascontiguousarray(self._patch_map.ravel()[self.patch[:, None] * len(qi) + local])
 
     # -- kinematics ---------------------------------------------------------------------------------
     def deformation_gradient(self, u: np.ndarray) -> np.ndarray:
@@ -305,45 +287,13 @@ class NeoHookeanOperator:
         R = self._scatter_dofs @ r_tet.ravel()
         if not tangent:
             return Evaluation(energy, R, None, min_J, min_Jbar)
-        f = np.matmul(self.grad, F.transpose(0, 2, 1))  # f_a = F g_a
-        h = np.matmul(self.grad, cof.transpose(0, 2, 1))  # h_a = F^-T g_a: spatial hat-function gradients
-        q = f - (I1 / 6.0)[:, None, None] * h
-        M = len(self.tets)
-        f32 = self._ft  # see ``precision``
-        h12 = h.reshape(M, 12).astype(f32)
-        q12 = q.reshape(M, 12).astype(f32)
-        pI, pJ, pS, pT = self._tet_pairs
-        hI, hJ = np.take(h12, pI, axis=1), np.take(h12, pJ, axis=1)
-        vals = np.take(q12, pI, axis=1)
-        vals *= hJ
-        tmp = np.take(q12, pJ, axis=1)
-        tmp *= hI
-        vals += tmp
-        vals *= f32(-2.0 / 3.0)
-        vals += self._G_delta
-        vals *= c.astype(f32)[:, None]
-        np.multiply(hI, hJ, out=hI)
-        hI *= w.astype(f32)[:, None]
-        vals += hI
-        np.take(h12, pS, axis=1, out=tmp)
-        tmp *= np.take(h12, pT, axis=1)
-        tmp *= (c * I1 / 3.0 - w).astype(f32)[:, None]
-        vals += tmp
-        data = (self._scatter_tet @ vals.ravel()).astype(np.float64)
-        # patch rank-one blocks: U''(Jbar) / V_h * gbar gbar^T, gbar = d(patch volume)/du
-        k = self._kmax
-        gkey = (self.patch[:, None] * k + self._tet_slot).ravel()
-        vh = (v_e[:, None, None] * h).reshape(-1, 3)
-        gbar = np.empty((self.n_patches * k, 3))
-        for i in range(3):
-            gbar[:, i] = np.bincount(gkey, vh[:, i], minlength=self.n_patches * k)
-        gbar = gbar.reshape(self.n_patches, 3 * k)
+        data = np.zeros(self.nnz + 1)
+        tet_tangents(self.grad, F, cof, c, w, I1, self._tet_slots, data)
         qi, qj = self._patch_pairs
         Upp = 0.5 * kap * (1.0 + 1.0 / Jbar ** 2)
-        gq = np.take(gbar, qi, axis=1)
-        gq *= np.take(gbar, qj, axis=1)
-        gq *= (Upp / self.patch_vol)[:, None]
-        data += self._scatter_patch @ gq.ravel()
+        patch_tangents(self.grad, cof, v_e, self.patch, self._tet_slot, Upp / self.patch_vol, self._kmax, qi, qj,
+                       self._patch_map, data)
+        data = data[:-1]
         return Evaluation(energy, R, data, min_J, min_Jbar)
 
     def principal_stretches(self, u: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:

@@ -10,11 +10,13 @@ Bottom face fixed, sides free, the indenters of :mod:`latticeopt.mechanics.inden
 are driven together: at load factor ``lam`` touch ``i`` is at depth ``lam * depth_i`` (load steps of at most
 ``max_step_mm`` for the deepest touch). Each load step applies the prescribed displacement increment through
 the tangent (so the first iterate is the linearised response, not a crushed top layer) and then iterates on
-the residual: by default full Newton (``method="newton"``, a factorization per iteration, quadratic) or
-limited-memory BFGS on top of the last tangent factorization with a refactorization whenever progress
-stalls or a quasi-Newton direction is rejected (``method="bfgs"``: fewer factorizations but, with the
-single-precision factorization and the conforming punch rim, more iterations and more time at the 2 mm mesh;
-see ``benchmarks/bench_indent.py``). A backtracking line search never accepts
+the residual. By default inexact Newton (``method="newton-krylov"``): every iteration solves the current
+tangent by GMRES preconditioned by the latest PARDISO factorization, to a relative residual ``krylov_rtol``,
+and refactorizes only when GMRES would need more than ``max_krylov`` back-substitutions -- about one
+factorization per load step instead of one per iteration. ``method="newton"`` factorizes every iteration
+(quadratic convergence, tested); ``method="bfgs"`` applies limited-memory BFGS updates on top of the last
+factorization. Timings of all three: ``benchmarks/bench_indent.py`` and the README.
+A backtracking line search never accepts
 ``det F <= 0`` (nor a patch mean dilatation <= 0) and demands a decrease of energy or residual. A step has
 converged when the residual on the free DOFs is below ``rtol`` times the reaction norm (or ``atol_N``);
 intermediate steps use the looser ``step_rtol`` (only the final state is reported). A failed step is
@@ -36,7 +38,7 @@ import scipy.sparse as sp
 
 from ..design import REGION_IDS
 from ..errors import ConvergenceError
-from ..linalg import SymmetricSolver
+from ..linalg import SymmetricSolver, gmres
 from ..mesh.tetmesh import TetMesh
 from ..touches import Touch, check_touches
 from .assembly import Evaluation, NeoHookeanOperator
@@ -44,6 +46,10 @@ from .indenters import Constraints, conform_punch_edges
 from .settings import IndentationResult, IndentSettings
 
 log = logging.getLogger(__name__)
+# Krylov forcing term of a load step's first iteration: its right-hand side is the lift of the prescribed
+# increment, far larger than the residual it leaves, so it needs a tighter relative tolerance than
+# ``krylov_rtol`` (1e-2 here took 199 Newton iterations on six random phantoms, 1e-3 took 168)
+_JUMP_RTOL = 1e-3
 
 
 class _StepFailed(Exception):
@@ -73,7 +79,7 @@ class IndentationSolver:
         for name in ("top", "bottom"):
             if name not in mesh.facets or len(mesh.facets[name]) == 0:
                 raise ValueError(f"mesh: expected a non-empty facet set {name!r}")
-        self.op = NeoHookeanOperator(mesh, settings.materials, settings.volumetric, settings.precision)
+        self.op = NeoHookeanOperator(mesh, settings.materials, settings.volumetric)
         self.top_nodes = np.unique(mesh.facets["top"])
         self.bottom_nodes = np.unique(mesh.facets["bottom"])
         lo, hi = mesh.nodes_mm.min(axis=0), mesh.nodes_mm.max(axis=0)
@@ -91,7 +97,7 @@ class IndentationSolver:
         isD = np.zeros(n, dtype=bool)
         isD[(3 * self.bottom_nodes[:, None] + np.arange(3)).ravel()] = True
         # symbolic analysis only: every phantom factorizes its own tangent (same pattern)
-        self.linear = SymmetricSolver(self._matrix(self._ev0.data, isD), positive_definite=False,
+        self.linear = SymmetricSolver(self._matrix(self._ev0.data, isD), positive_definite="auto",
                                       backend=settings.backend, factorize=False, precision=settings.precision)
         self.setup_seconds = time.perf_counter() - t0
         log.info("indentation solver: %d dofs, %d nonzeros, %s, set up in %.2f s", n, self.op.nnz,
@@ -118,7 +124,8 @@ class IndentationSolver:
         t_start = time.perf_counter()
         s = self.settings
         touches = check_touches(touches, self.x_range, self.y_range, self.thickness_mm)
-        self._clock = {"assembly": 0.0, "factorization": 0.0, "solve": 0.0}
+        self._clock = {"assembly": 0.0, "factorization": 0.0, "solve": 0.0, "krylov": 0.0}
+        self._n_krylov = 0
         ref, self._op, ev = self.mesh.nodes_mm, self.op, self._ev0
         if s.indenter == "flat" and s.punch_edge == "conforming":
             ref = conform_punch_edges(self.mesh.nodes_mm, self.mesh.tets, self.mesh.facets["top"], self._movable,
@@ -174,8 +181,8 @@ class IndentationSolver:
         clock["total"] = total
         clock["setup"] = self.setup_seconds
         stats = {"backend": self.linear.backend, "n_dofs": self.op.n_dofs, "nnz_upper": self.op.nnz,
-                 "n_factorizations": self._n_factor, "method": s.method, "volumetric": s.volumetric,
-                 "indenter": s.indenter, "in_plane": s.in_plane, "punch_edge": s.punch_edge,
+                 "n_factorizations": self._n_factor, "krylov_iterations": self._n_krylov, "method": s.method,
+                 "volumetric": s.volumetric, "indenter": s.indenter, "in_plane": s.in_plane, "punch_edge": s.punch_edge,
                  "moved_reference_nodes": n_moved, "contact_nodes": [int(len(n)) for n in cons.contact_nodes()]}
         return IndentationResult(
             touches=touches, displacement_mm=u, deformed_mesh=self.mesh.with_nodes(ref + u),
@@ -218,7 +225,8 @@ class IndentationSolver:
         memory: list = []
         since = 0  # BFGS iterations since the last factorization
         refactor_next = False
-        max_it = s.max_newton if s.method == "newton" else 3 * s.max_newton
+        krylov = s.method == "newton-krylov"
+        max_it = 3 * s.max_newton if s.method == "bfgs" else s.max_newton
         for it in range(max_it + 1):
             D, vals = cons.dirichlet(lam)
             isD = np.zeros(n, dtype=bool)
@@ -249,25 +257,32 @@ class IndentationSolver:
             # fewer per load step
             reuse = s.method == "newton" and it == 0 and fresh and bool(np.any(jump))
             exact = (s.method == "newton" and not reuse) or not fresh or stalled or refactor_next
+            if krylov and not exact:  # GMRES on the current tangent through the last factorization
+                if ev.data is None:
+                    ev = self._evaluate(u, tangent=True)
+                # a residual below half the tolerance is all the next iterate needs
+                du = self._krylov_solve(ev, isD, D, jump, R, _JUMP_RTOL if np.any(jump) else s.krylov_rtol,
+                                        0.5 * tol)
+                exact = du is None  # the factorization is too stale: refactorize instead
             if exact:
                 if ev.data is None:
                     ev = self._evaluate(u, tangent=True)
                 du = self._linear_solve(ev, isD, D, jump, R)
                 self._factor_isD = isD
                 memory, since, refactor_next = [], 0, False
-            elif np.any(jump):
+            elif not krylov and np.any(jump):
                 # the load increment through the previous factorization (one back-substitution); the tangent
                 # changes most over it, so the next iteration refactorizes
                 if ev.data is None:
                     ev = self._evaluate(u, tangent=True)
                 du = self._linear_solve(ev, isD, D, jump, R, refactor=False)
                 memory, since, refactor_next = [], 0, True
-            else:
+            elif not krylov:
                 du = -self._bfgs_direction(np.where(isD, 0.0, R), memory)
                 du[isD] = 0.0
                 since += 1
             try:
-                ev_new, u_new = self._line_search(u, du, ev, np.any(jump), isD, tangent=s.method == "newton")
+                ev_new, u_new = self._line_search(u, du, ev, np.any(jump), isD, tangent=s.method != "bfgs")
             except _StepFailed:
                 if exact:
                     raise
@@ -320,6 +335,37 @@ class IndentationSolver:
         self._clock["solve"] += time.perf_counter() - t1
         self._n_solves += 1
         du[D] = jump  # exact, whatever the solver's rounding
+        return du
+
+    def _krylov_solve(self, ev: Evaluation, isD: np.ndarray, D: np.ndarray, jump: np.ndarray, R: np.ndarray,
+                      rtol: float, atol: float) -> np.ndarray | None:
+        """The Newton increment of :meth:`_linear_solve` by GMRES on the current tangent, preconditioned by the
+        latest factorization, to ``|residual| <= max(rtol |rhs|, atol)``; None when that would take more than
+        ``max_krylov`` iterations."""
+        t = time.perf_counter()
+        b = -R.copy()
+        if np.any(jump):
+            lift = np.zeros(self.op.n_dofs)
+            lift[D] = jump
+            b -= self._symmetric_matvec(ev.data, lift)
+        b[D] = 0.0
+        U = self._matrix(ev.data, isD)
+        diag = U.data[self.op.diag_pos]
+
+        def matvec(x):
+            return U @ x + U.T @ x - diag * x
+
+        def precondition(r):
+            return self.linear.solve(r).ravel()
+
+        du, its, ok = gmres(matvec, b, precondition, max(rtol * float(np.linalg.norm(b)), atol),
+                            self.settings.max_krylov)
+        self._n_krylov += its
+        self._clock["krylov"] += time.perf_counter() - t
+        if not ok:
+            return None
+        self._n_solves += 1
+        du[D] = jump
         return du
 
     def _line_search(self, u: np.ndarray, du: np.ndarray, ev: Evaluation, has_jump: bool, isD: np.ndarray,

@@ -18,7 +18,7 @@ from .materials import Materials
 __all__ = ["METHODS", "PREDICTORS", "IndentSettings", "IndentationResult"]
 
 PREDICTORS = ("secant", "tangent")
-METHODS = ("bfgs", "newton")
+METHODS = ("bfgs", "newton", "newton-krylov")
 
 
 @dataclass(frozen=True)
@@ -59,20 +59,27 @@ class IndentSettings:
         Start of each load step after the first: ``"tangent"`` (apply the increment through the tangent,
         default) or ``"secant"`` (extrapolate the last two converged states; measured worse here).
     method
-        ``"newton"`` (default): full Newton, a new factorization every iteration (quadratic). ``"bfgs"``:
-        factorize the tangent at the start of each load step and iterate with limited-memory BFGS updates on
-        top of it, refactorizing when progress stalls (superlinear, each iteration one back-substitution).
-        Measured at the 2 mm mesh: Newton 17 s against 28 s on the benchmark punch
-        (``benchmarks/bench_indent.py``) and 127 s against 135 s for six random phantoms; at 4 mm BFGS was
-        about 10 % faster.
+        ``"newton-krylov"`` (default): inexact Newton. Each iteration solves the current tangent by GMRES
+        preconditioned by the latest factorization, and refactorizes only when GMRES would need more than
+        ``max_krylov`` iterations (the factorization has gone stale). ``"newton"``: a new factorization every
+        iteration (exact Newton). ``"bfgs"``: limited-memory BFGS updates on top of the factorization of a
+        load step's first tangent, refactorizing when progress stalls. Measured at the 2 mm mesh
+        (``benchmarks/bench_indent.py``): see the README's mechanics table.
     max_bfgs
         BFGS memory, and iterations on one factorization before a refactorization.
+    krylov_rtol
+        ``"newton-krylov"``: GMRES stops at this relative residual (forcing term), or at half the Newton
+        tolerance if that is looser.
+    max_krylov
+        ``"newton-krylov"``: GMRES iterations (back-substitutions) before a refactorization; GMRES gives up
+        earlier when its rate so far cannot reach the tolerance within them.
     backend
         Sparse solver: ``"auto"`` (PARDISO if installed), ``"pardiso"`` or ``"scipy"``.
     precision
-        Tangent assembly and factorization in ``"single"`` (default; PARDISO) or ``"double"`` precision. The
-        tangent only steers the iterations; convergence is judged on the double-precision residual, so the
-        converged state is the same to ``rtol`` (``tests/test_mechanics_indent.py``), at about 0.6x the time.
+        Factorization in ``"single"`` (default; PARDISO) or ``"double"`` precision (the tangent and residual
+        are always assembled in double). The factorization only steers the iterations; convergence is judged
+        on the double-precision residual, so the converged state is the same to ``rtol``
+        (``tests/test_mechanics_indent.py``), at about 0.55x the factorization time.
     """
 
     materials: Materials = field(default_factory=Materials)
@@ -86,8 +93,10 @@ class IndentSettings:
     rtol: float = 1e-6
     atol_N: float = 1e-10
     step_rtol: float = 1e-3
-    method: str = "newton"
+    method: str = "newton-krylov"
     max_bfgs: int = 8
+    krylov_rtol: float = 0.1
+    max_krylov: int = 16
     predictor: str = "tangent"
     backend: str = "auto"
     precision: str = "single"
@@ -111,6 +120,8 @@ class IndentSettings:
         set_(self, "predictor", v.choice("predictor", self.predictor, PREDICTORS))
         set_(self, "method", v.choice("method", self.method, METHODS))
         set_(self, "max_bfgs", v.integer("max_bfgs", self.max_bfgs, lo=1, hi=100))
+        set_(self, "krylov_rtol", v.real("krylov_rtol", self.krylov_rtol, lo=0, lo_open=True, hi=0.5))
+        set_(self, "max_krylov", v.integer("max_krylov", self.max_krylov, lo=3, hi=200))
 
     def as_dict(self) -> dict:
         return dataclasses.asdict(self)

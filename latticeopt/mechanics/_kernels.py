@@ -1,0 +1,99 @@
+"""Compiled (numba) tangent assembly of :class:`~latticeopt.mechanics.assembly.NeoHookeanOperator`.
+
+One pass over the tets writes each 12 x 12 upper triangle straight into the CSR values through a slot map;
+one pass over the patches adds the rank-one mean-dilatation blocks. The vectorised numpy version this
+replaces needed a dozen (M, 78) temporaries and a sparse scatter product: 0.15 s against about 0.04 s at the
+default 2 mm mesh (``benchmarks/bench_indent.py``). The arithmetic is float64 throughout.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True)
+def tet_tangents(grad, F, Finv_T, c, w, I1, slots, data):  # pragma: no cover - compiled
+    """Add the deviatoric and pressure tangents of every tet to ``data``.
+
+    With ``g_a`` the reference gradients, ``h_a = F^-T g_a``, ``q_a = F g_a - I1/6 h_a`` (per tet)::
+
+        K_ai,bk = c [d_ik g_a.g_b - 2/3 (q_ai h_bk + h_ai q_bk) + I1/3 h_bi h_ak] + w (h_ai h_bk - h_bi h_ak)
+
+    Parameters
+    ----------
+    grad : (M, 4, 3)
+        Reference gradients of the hat functions (1/mm).
+    F, Finv_T : (M, 3, 3)
+        Deformation gradient and its inverse transpose.
+    c, w, I1 : (M,)
+        ``V mu J^-2/3`` (N mm), ``U'(Jbar) J V`` (N mm) and ``tr(F^T F)``.
+    slots : (M, 78) int
+        Position in ``data`` of each upper pair ``(3a + i) <= (3b + k)``, row-major.
+    data : (nnz + 1,)
+        CSR values, accumulated in place (the last entry absorbs padding).
+    """
+    h = np.empty((4, 3))
+    q = np.empty((4, 3))
+    G = np.empty((4, 4))
+    for e in range(grad.shape[0]):
+        for a in range(4):
+            for i in range(3):
+                fa = 0.0
+                ha = 0.0
+                for j in range(3):
+                    fa += F[e, i, j] * grad[e, a, j]
+                    ha += Finv_T[e, i, j] * grad[e, a, j]
+                h[a, i] = ha
+                q[a, i] = fa - I1[e] / 6.0 * ha
+            for b in range(4):
+                G[a, b] = grad[e, a, 0] * grad[e, b, 0] + grad[e, a, 1] * grad[e, b, 1] + grad[e, a, 2] * grad[e, b, 2]
+        ce, we, se = c[e], w[e], c[e] * I1[e] / 3.0 - w[e]
+        n = 0
+        for r in range(12):
+            a, i = r // 3, r % 3
+            for s in range(r, 12):
+                b, k = s // 3, s % 3
+                v = ce * (-2.0 / 3.0) * (q[a, i] * h[b, k] + h[a, i] * q[b, k]) + we * h[a, i] * h[b, k]
+                v += se * h[b, i] * h[a, k]
+                if i == k:
+                    v += ce * G[a, b]
+                data[slots[e, n]] += v
+                n += 1
+
+
+@njit(cache=True)
+def patch_tangents(grad, Finv_T, v_e, patch, tet_slot, coef, kmax, qi, qj, pmap, data):  # pragma: no cover
+    """Add ``coef_h gbar gbar^T`` per patch, ``gbar = sum_{e in h} v_e h_e`` (derivative of the patch volume).
+
+    Parameters
+    ----------
+    grad, Finv_T
+        As in :func:`tet_tangents`.
+    v_e : (M,)
+        Deformed tet volumes ``J V`` (mm^3).
+    patch : (M,) int
+        Patch of every tet (tets sorted by patch).
+    tet_slot : (M, 4) int
+        Local node position of each tet node in its patch.
+    coef : (P,)
+        ``U''(Jbar) / V_h`` (N / mm^4).
+    kmax
+        Nodes per patch block (padded).
+    qi, qj, pmap
+        Upper pairs of the ``3 kmax`` patch dofs and their positions in ``data`` per patch, ``(P, len(qi))``.
+    data : (nnz + 1,)
+        CSR values, accumulated in place.
+    """
+    P = coef.shape[0]
+    gbar = np.zeros((P, 3 * kmax))
+    for e in range(grad.shape[0]):
+        p = patch[e]
+        for a in range(4):
+            base = 3 * tet_slot[e, a]
+            for i in range(3):
+                ha = Finv_T[e, i, 0] * grad[e, a, 0] + Finv_T[e, i, 1] * grad[e, a, 1] + Finv_T[e, i, 2] * grad[e, a, 2]
+                gbar[p, base + i] += v_e[e] * ha
+    for p in range(P):
+        for n in range(qi.shape[0]):
+            data[pmap[p, n]] += coef[p] * gbar[p, qi[n]] * gbar[p, qj[n]]
