@@ -14,11 +14,12 @@ def test_full_newton_converges_quadratically(stack_mesh):
         [(25, 25, 6.25, 1.0)])
     r = np.array(res.residual_norms[-1][1:])  # after the prescribed-increment iteration
     rho = r / r[0]
-    # quadratic: rho_k+1 <= C rho_k^2 with C <= 1 in units of the first residual, for every iterate above
-    # round-off (a linearly convergent method with rate q fails once rho_k < q)
+    # quadratic: rho_k+1 <= C rho_k^2 with one modest C (2, in units of the first residual) for every iterate
+    # above round-off; a linearly convergent method with rate q has rho_k+1 / rho_k^2 = q / rho_k, which
+    # exceeds 2 once rho_k < q / 2
     pairs = [(a, b) for a, b, rb in zip(rho[:-1], rho[1:], r[1:]) if rb > 1e-11]
     assert len(pairs) >= 2, r
-    assert all(b <= a * a for a, b in pairs), r
+    assert all(b <= 2.0 * a * a for a, b in pairs), r
     assert rho[len(pairs)] < 1e-5, r
 
 
