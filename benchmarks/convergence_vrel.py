@@ -1,11 +1,14 @@
 """Mesh convergence of V_rel for the default design (decides the mesh of studies/paper_fig4.toml).
 
     python benchmarks/convergence_vrel.py [--sizes 4 2.8 2 1.4] [--phantoms 6] [--jobs 2]
+    python benchmarks/convergence_vrel.py --levels 2.8:2:2 2:2:2 1.4:3:3 --width 2 --thickness 1
 
 Each level refines the grid (element size, and cells across a channel / through the layer with it) and
 evaluates the same phantoms (the first ones of paper_fig4's seeded set: 1, 2 and 3 touches in turn). It
 prints mean V_rel per mesh, the relative change between successive meshes (mean over phantoms of the
-per-phantom relative change, and of the mean) and the seconds per phantom, as a Markdown table.
+per-phantom relative change, and of the mean) and the seconds per phantom, as a Markdown table, and at the
+end the same changes against the last (finest) level. ``--levels SIZE:CHANNEL_CELLS:LAYER_CELLS`` replaces the
+ladder by explicit meshes.
 """
 
 from __future__ import annotations
@@ -34,9 +37,17 @@ def settings_for(size_mm: float) -> MeshSettings:
     return MeshSettings(size_mm=size_mm, channel_cells=cells, layer_cells=max(2, cells))
 
 
+def _level(text: str) -> MeshSettings:
+    try:
+        size, channel, layer = text.split(":")
+        return MeshSettings(size_mm=float(size), channel_cells=int(channel), layer_cells=int(layer))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--levels: expected SIZE:CHANNEL_CELLS:LAYER_CELLS, got {text!r}") from None
+
+
 def _run(args):
-    size, phantoms, design = args
-    model = CoupledModel(design, settings_for(size), cache_dir=CACHE)
+    mesh_settings, phantoms, design = args
+    model = CoupledModel(design, mesh_settings, cache_dir=CACHE)
     out = []
     for ph in phantoms:
         t0 = time.perf_counter()
@@ -52,17 +63,22 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--width", type=float, default=4.0)
     ap.add_argument("--thickness", type=float, default=3.0)
+    ap.add_argument("--levels", type=_level, nargs="+", default=None,
+                    help="explicit meshes SIZE:CHANNEL_CELLS:LAYER_CELLS (replaces --sizes)")
     a = ap.parse_args()
+    levels = a.levels or [settings_for(size) for size in a.sizes]
     design = LatticeDesign(width_mm=a.width, thickness_mm=a.thickness)
     phantoms = [random_phantom(100.0, 1 + i % 3, i // 3, 2025) for i in range(a.phantoms)]
     print(f"load average: {os.getloadavg()[0]:.2f}; {design.describe()}; {a.phantoms} phantoms")
-    print("| size mm | channel cells | nodes | mean V_rel | change of mean | per-phantom change | s/phantom |")
-    print("|---|---|---|---|---|---|---|")
+    print("| size mm | channel cells | layer cells | nodes | mean V_rel | change of mean | per-phantom change | "
+          "s/phantom |")
+    print("|---|---|---|---|---|---|---|---|")
     prev = None
-    for size in a.sizes:
+    results = []
+    for ms in levels:
         chunks = [phantoms[i::a.jobs] for i in range(a.jobs)]
         with ProcessPoolExecutor(a.jobs) as ex:
-            parts = list(ex.map(_run, [(size, c, design) for c in chunks]))
+            parts = list(ex.map(_run, [(ms, c, design) for c in chunks]))
         vals = np.empty(len(phantoms))
         secs = []
         for j, (_, rows) in enumerate(parts):
@@ -74,9 +90,16 @@ def main() -> None:
         else:
             change_mean = f"{abs(vals.mean() - prev.mean()) / vals.mean():.2%}"
             change_each = f"{np.mean(np.abs(vals - prev) / vals):.2%}"
-        print(f"| {size:g} | {settings_for(size).channel_cells} | {nodes} | {vals.mean():.5f} | {change_mean} | "
-              f"{change_each} | {np.mean(secs):.1f} |", flush=True)
+        print(f"| {ms.size_mm:g} | {ms.channel_cells} | {ms.layer_cells} | {nodes} | {vals.mean():.5f} | "
+              f"{change_mean} | {change_each} | {np.mean(secs):.1f} |", flush=True)
         prev = vals
+        results.append((ms, vals))
+    ref = results[-1][1]
+    print(f"\nagainst the finest level ({levels[-1].size_mm:g} mm):")
+    for ms, vals in results[:-1]:
+        change = abs(vals.mean() - ref.mean()) / ref.mean()
+        print(f"  {ms.size_mm:g}:{ms.channel_cells}:{ms.layer_cells}  mean {change:.2%}"
+              f"  per phantom {np.mean(np.abs(vals - ref) / ref):.2%}")
 
 
 if __name__ == "__main__":
