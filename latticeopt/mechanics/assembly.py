@@ -34,10 +34,9 @@ import logging
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.sparse as sp
 
 from ..mesh.tetmesh import TetMesh
-from ._kernels import patch_tangents, tet_tangents
+from ._kernels import kinematics, patch_tangents, tet_forces, tet_tangents
 from .materials import Materials
 
 log = logging.getLogger(__name__)
@@ -157,9 +156,6 @@ class NeoHookeanOperator:
         self._build_patch_nodes(P)
         self._build_pattern()
         M = mesh.n_tets
-        self._tet_dofs = (3 * self.tets[:, :, None] + np.arange(3)).reshape(M, 12)
-        d = self._tet_dofs.ravel()
-        self._scatter_dofs = sp.csr_matrix((np.ones(len(d)), (d, np.arange(len(d)))), shape=(self.n_dofs, len(d)))
         self._set_geometry(self.grad, self.vol)
         log.debug("operator: %d tets, %d patches (max %d nodes), %d dofs, %d upper nonzeros",
                   M, P, self._kmax, self.n_dofs, self.nnz)
@@ -229,32 +225,11 @@ class NeoHookeanOperator:
     # -- kinematics ---------------------------------------------------------------------------------
     def deformation_gradient(self, u: np.ndarray) -> np.ndarray:
         """``F`` of every tet in the operator's (patch-sorted) order, shape ``(M, 3, 3)``; ``u`` is (N, 3) mm."""
-        F = np.matmul(u[self.tets].transpose(0, 2, 1), self.grad)
-        F[:, 0, 0] += 1.0
-        F[:, 1, 1] += 1.0
-        F[:, 2, 2] += 1.0
-        return F
-
-    @staticmethod
-    def _det_cof(F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``det F`` and the cofactor matrix ``d det / dF = J F^-T``, explicitly (no LAPACK per tet)."""
-        a, b, c = F[:, 0], F[:, 1], F[:, 2]
-        cof = np.empty_like(F)
-        cof[:, 0, 0] = b[:, 1] * c[:, 2] - b[:, 2] * c[:, 1]
-        cof[:, 0, 1] = b[:, 2] * c[:, 0] - b[:, 0] * c[:, 2]
-        cof[:, 0, 2] = b[:, 0] * c[:, 1] - b[:, 1] * c[:, 0]
-        cof[:, 1, 0] = c[:, 1] * a[:, 2] - c[:, 2] * a[:, 1]
-        cof[:, 1, 1] = c[:, 2] * a[:, 0] - c[:, 0] * a[:, 2]
-        cof[:, 1, 2] = c[:, 0] * a[:, 1] - c[:, 1] * a[:, 0]
-        cof[:, 2, 0] = a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1]
-        cof[:, 2, 1] = a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2]
-        cof[:, 2, 2] = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
-        J = a[:, 0] * cof[:, 0, 0] + a[:, 1] * cof[:, 0, 1] + a[:, 2] * cof[:, 0, 2]
-        return J, cof
+        return kinematics(np.ascontiguousarray(u, dtype=float), self.tets, self.grad)[0]
 
     def jacobians(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``det F`` per tet in *mesh* order, shape ``(M,)``, and mean dilatation per patch, shape ``(P,)``."""
-        J, _ = self._det_cof(self.deformation_gradient(u))
+        J = kinematics(np.ascontiguousarray(u, dtype=float), self.tets, self.grad)[2]
         Jbar = np.bincount(self.patch, J * self.vol, minlength=self.n_patches) / self.patch_vol
         out = np.empty_like(J)
         out[self.order] = J
@@ -263,8 +238,7 @@ class NeoHookeanOperator:
     # -- energy, residual, tangent ------------------------------------------------------------------
     def evaluate(self, u: np.ndarray, residual: bool = True, tangent: bool = True) -> Evaluation:
         """Energy and, unless inverted, residual and tangent at displacement ``u`` (N, 3) in mm."""
-        F = self.deformation_gradient(u)
-        J, cof = self._det_cof(F)
+        F, cof, J = kinematics(np.ascontiguousarray(u, dtype=float), self.tets, self.grad)
         v_e = J * self.vol
         Jbar = np.bincount(self.patch, v_e, minlength=self.n_patches) / self.patch_vol
         min_J, min_Jbar = float(J.min()), float(Jbar.min())
@@ -281,10 +255,8 @@ class NeoHookeanOperator:
         c = self.vol * self.mu * Jm23
         Up = 0.5 * kap * (Jbar - 1.0 / Jbar)
         w = Up[self.patch] * v_e  # U'(Jbar) v_e per tet
-        # r_a = c (f_a - I1/3 h_a) + w h_a = P g_a with the volume-weighted Piola stress P below (one product)
-        P = c[:, None, None] * F + (w - c * I1 / 3.0)[:, None, None] * cof
-        r_tet = np.matmul(self.grad, P.transpose(0, 2, 1))
-        R = self._scatter_dofs @ r_tet.ravel()
+        R = np.zeros(self.n_dofs)
+        tet_forces(self.grad, F, cof, c, w, I1, self.tets, R)
         if not tangent:
             return Evaluation(energy, R, None, min_J, min_Jbar)
         data = np.zeros(self.nnz + 1)
