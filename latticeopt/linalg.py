@@ -54,7 +54,7 @@ class SymmetricSolver:
     Parameters
     ----------
     A : sparse matrix, shape (n, n)
-        Symmetric; only its upper triangle is read by PARDISO.
+        Symmetric; only its upper triangle is read (by both backends).
     positive_definite
         True for SPD systems (Cholesky-type, PARDISO ``mtype=2``); False for symmetric indefinite ones
         (``mtype=-2``, Bunch-Kaufman ``LDL^T``; saddle points such as mixed u-p mechanics); ``"auto"``:
@@ -147,7 +147,10 @@ class SymmetricSolver:
         if self.backend == "scipy":
             from scipy.sparse.linalg import splu
 
-            self._lu = splu(sp.csc_matrix(A), permc_spec="MMD_AT_PLUS_A")
+            # only the upper triangle is read, as by PARDISO (the mechanics passes nothing else)
+            upper = sp.triu(A, format="csc")
+            full = (upper + sp.triu(A, k=1, format="csc").T).tocsc()
+            self._lu = splu(full, permc_spec="MMD_AT_PLUS_A")
             return
         if self._is_stored_pattern(A):  # already the analysed upper triangle (mechanics): skip the rebuild
             upper, same = A, True

@@ -109,3 +109,11 @@ def test_gmres_gives_up_early_when_the_rate_cannot_reach_the_tolerance(system):
     x, its, ok = gmres(lambda v: A @ v, b[:, 0], lambda r: r, 1e-12 * np.linalg.norm(b[:, 0]), 50)
     assert not ok and 3 <= its < 50
     assert np.linalg.norm(A @ x - b[:, 0]) < np.linalg.norm(b[:, 0])  # the best iterate still helps
+
+
+@pytest.mark.parametrize("backend", ["scipy", pytest.param("pardiso", marks=pardiso)])
+def test_only_the_upper_triangle_is_read(system, backend):
+    """Given just the upper triangle (as the mechanics passes it), every backend solves the symmetric system."""
+    A, b = system
+    x = SymmetricSolver(sp.triu(A, format="csr"), backend=backend).solve(b)
+    assert np.linalg.norm(A @ x - b) <= 1e-10 * np.linalg.norm(b)

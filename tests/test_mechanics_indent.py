@@ -167,3 +167,13 @@ def test_settings_are_validated():
         IndentSettings(max_step_mm=1.0, min_step_mm=2.0)
     with pytest.raises(ParameterError, match="method"):
         IndentSettings(method="magic")
+
+
+def test_scipy_fallback_reaches_the_pardiso_state(stack_mesh, stack_solver):
+    """Without PARDISO (SuperLU factorizations as the GMRES preconditioner) the same converged state."""
+    touch = [(25, 25, 6.25, 1.0)]
+    a = stack_solver.solve(touch)
+    b = IndentationSolver(stack_mesh, IndentSettings(backend="scipy")).solve(touch)
+    assert b.solver["backend"] == "scipy"
+    assert a.forces_N[0] == pytest.approx(b.forces_N[0], rel=1e-5)
+    assert np.abs(a.displacement_mm - b.displacement_mm).max() < 1e-4
