@@ -160,23 +160,22 @@ class SymmetricSolver:
             self._ps._check_A(upper)
         if not same:  # new pattern: redo the analyses
             self._pattern = (upper.indptr.copy(), upper.indices.copy())
-            self._solvers.clear()
+            self._free_solvers()
         self._upper_A = upper = self._cast(upper)
-        mtype = -2 if self.positive_definite is False else 2
-        self._ps = self._analysed(mtype, upper)
-        self._ps.set_phase(22)
-        if self.positive_definite != "auto":
-            self._ps._call_pardiso(upper, np.zeros((self.n, 1), dtype=self._dtype))
-            return
         from pypardiso.pardiso_wrapper import PyPardisoError
 
         try:
-            self._ps._call_pardiso(upper, np.zeros((self.n, 1), dtype=self._dtype))
-        except PyPardisoError:  # a non-positive pivot (error -4): this matrix needs LDL^T
+            self._factorize(-2 if self.positive_definite is False else 2, upper)
+        except PyPardisoError:  # a non-positive pivot (error -4) under Cholesky: this matrix needs LDL^T
+            if self.positive_definite != "auto":
+                raise
             self.n_indefinite += 1
-            self._ps = self._analysed(-2, upper)
-            self._ps.set_phase(22)
-            self._ps._call_pardiso(upper, np.zeros((self.n, 1), dtype=self._dtype))
+            self._factorize(-2, upper)
+
+    def _factorize(self, mtype: int, upper: sp.csr_matrix) -> None:
+        self._ps = self._analysed(mtype, upper)
+        self._ps.set_phase(22)
+        self._ps._call_pardiso(upper, np.zeros((self.n, 1), dtype=self._dtype))
 
     def solve(self, B: np.ndarray) -> np.ndarray:
         """Solve ``A X = B`` for one (shape ``(n,)``) or many (shape ``(n, k)``) right-hand sides."""
@@ -189,13 +188,17 @@ class SymmetricSolver:
         X = self._ps._call_pardiso(self._upper_A, np.asfortranarray(B, dtype=self._dtype))
         return X.astype(np.float64, copy=False)
 
-    def __del__(self):
+    def _free_solvers(self) -> None:
+        """Release every PARDISO handle's MKL memory (a new pattern, or the solver going away)."""
         for ps in getattr(self, "_solvers", {}).values():
             try:
                 ps.free_memory(everything=True)
             except Exception:  # noqa: BLE001 - interpreter shutdown; nothing to report to
                 pass
+        self._solvers = {}
 
+    def __del__(self):
+        self._free_solvers()
 
 
 def gmres(matvec, b: np.ndarray, precondition, atol: float, maxiter: int) -> tuple[np.ndarray, int, bool]:
