@@ -223,13 +223,17 @@ class NeoHookeanOperator:
         self._tet_slots = np.ascontiguousarray(self._patch_map.ravel()[self.patch[:, None] * len(qi) + local])
 
     # -- kinematics ---------------------------------------------------------------------------------
+    def _kinematics(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``F``, its cofactor ``J F^-T`` (both ``(M, 3, 3)``) and ``J`` of every tet, patch-sorted order."""
+        return kinematics(np.ascontiguousarray(u, dtype=float), self.tets, self.grad)
+
     def deformation_gradient(self, u: np.ndarray) -> np.ndarray:
         """``F`` of every tet in the operator's (patch-sorted) order, shape ``(M, 3, 3)``; ``u`` is (N, 3) mm."""
-        return kinematics(np.ascontiguousarray(u, dtype=float), self.tets, self.grad)[0]
+        return self._kinematics(u)[0]
 
     def jacobians(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``det F`` per tet in *mesh* order, shape ``(M,)``, and mean dilatation per patch, shape ``(P,)``."""
-        J = kinematics(np.ascontiguousarray(u, dtype=float), self.tets, self.grad)[2]
+        J = self._kinematics(u)[2]
         Jbar = np.bincount(self.patch, J * self.vol, minlength=self.n_patches) / self.patch_vol
         out = np.empty_like(J)
         out[self.order] = J
@@ -238,7 +242,7 @@ class NeoHookeanOperator:
     # -- energy, residual, tangent ------------------------------------------------------------------
     def evaluate(self, u: np.ndarray, residual: bool = True, tangent: bool = True) -> Evaluation:
         """Energy and, unless inverted, residual and tangent at displacement ``u`` (N, 3) in mm."""
-        F, cof, J = kinematics(np.ascontiguousarray(u, dtype=float), self.tets, self.grad)
+        F, cof, J = self._kinematics(u)
         v_e = J * self.vol
         Jbar = np.bincount(self.patch, v_e, minlength=self.n_patches) / self.patch_vol
         min_J, min_Jbar = float(J.min()), float(Jbar.min())

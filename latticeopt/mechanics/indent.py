@@ -113,10 +113,22 @@ class IndentationSolver:
         out[dpos] = data[dpos]
         return sp.csr_matrix((out, op.indices, op.indptr), shape=(op.n_dofs, op.n_dofs))
 
-    def _symmetric_matvec(self, data: np.ndarray, x: np.ndarray) -> np.ndarray:
+    def _free_rhs(self, ev: Evaluation, D: np.ndarray, jump: np.ndarray, R: np.ndarray) -> np.ndarray:
+        """``-R - K lift(jump)``: the Newton right-hand side on the free DOFs (constrained rows still to set)."""
+        rhs = -R.copy()
+        if np.any(jump):
+            lift = np.zeros(self.op.n_dofs)
+            lift[D] = jump
+            rhs -= self._symmetric_operator(ev.data)(lift)
+        return rhs
+
+    def _symmetric_operator(self, data: np.ndarray):
+        """``x -> K x`` for the symmetric matrix whose upper-triangle values on the operator's pattern are
+        ``data`` (the sparse matrix is built once, for GMRES's many products)."""
         op = self.op
         U = sp.csr_matrix((data, op.indices, op.indptr), shape=(op.n_dofs, op.n_dofs))
-        return U @ x + U.T @ x - data[op.diag_pos] * x
+        diag = data[op.diag_pos]
+        return lambda x: U @ x + U.T @ x - diag * x
 
     # -- one phantom ----------------------------------------------------------------------------------
     def solve(self, touches) -> IndentationResult:
@@ -319,11 +331,7 @@ class IndentationSolver:
                       R: np.ndarray, refactor: bool = True) -> np.ndarray:
         """Newton increment: ``K du = -R`` on the free DOFs, ``du = jump`` on the constrained ones
         (symmetric elimination; the factorization reuses the symbolic analysis)."""
-        rhs = -R.copy()
-        if np.any(jump):
-            lift = np.zeros(self.op.n_dofs)
-            lift[D] = jump
-            rhs -= self._symmetric_matvec(ev.data, lift)
+        rhs = self._free_rhs(ev, D, jump, R)
         rhs[D] = ev.data[self.op.diag_pos[D]] * jump
         t = time.perf_counter()
         if refactor:
@@ -343,17 +351,9 @@ class IndentationSolver:
         latest factorization, to ``|residual| <= max(rtol |rhs|, atol)``; None when that would take more than
         ``max_krylov`` iterations."""
         t = time.perf_counter()
-        b = -R.copy()
-        if np.any(jump):
-            lift = np.zeros(self.op.n_dofs)
-            lift[D] = jump
-            b -= self._symmetric_matvec(ev.data, lift)
-        b[D] = 0.0
-        U = self._matrix(ev.data, isD)
-        diag = U.data[self.op.diag_pos]
-
-        def matvec(x):
-            return U @ x + U.T @ x - diag * x
+        b = self._free_rhs(ev, D, jump, R)
+        b[D] = 0.0  # du = jump there exactly; GMRES solves for the free part
+        matvec = self._symmetric_operator(self._matrix(ev.data, isD).data)
 
         def precondition(r):
             return self.linear.solve(r).ravel()
