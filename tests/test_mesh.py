@@ -127,6 +127,26 @@ def test_grid_lines_hit_every_feature_and_respect_the_size():
     assert {0.0, 4.0, 7.0, 9.0} <= set(np.round(z, 9))
 
 
+@pytest.mark.parametrize("width_mm", [2.0, 3.0, 4.0, 5.0, 6.0])
+def test_grid_channels_get_channel_cells_as_a_whole_not_per_piece(width_mm):
+    # electrode edges cut channels wider than an electrode into pieces; splitting every piece into
+    # channel_cells made 0.25 mm slivers at w = 5 whose grid lines crossed the whole sensor
+    d = LatticeDesign(width_mm=width_mm)
+    size, cells, centre = 2.0, 2, d.size_mm / 2
+    x, _, _ = grid_coordinates(d, size, channel_cells=cells, layer_cells=2)
+    edges = np.r_[d.electrodes()[:4, 0] - d.electrode_width_mm / 2, d.electrodes()[:4, 0] + d.electrode_width_mm / 2]
+    for a0, b0 in d.channel_intervals_mm():
+        for a, b in ((a0, min(b0, centre)), (max(a0, centre), b0)):  # each side of the centre line
+            if b <= a:
+                continue
+            inside = x[(x > a - 1e-9) & (x < b + 1e-9)]
+            assert len(inside) - 1 >= cells
+            ends = np.r_[a, np.sort(edges[(edges > a + 1e-9) & (edges < b - 1e-9)]), b]
+            for p, q in zip(ends[:-1], ends[1:]):  # a piece below both the size and its share is one cell
+                if q - p < min(size, (b - a) / cells) - 1e-9:
+                    assert np.count_nonzero((x > p + 1e-9) & (x < q - 1e-9)) == 0, (p, q, inside)
+
+
 def test_grid_mesh_is_deterministic():
     d = LatticeDesign(width_mm=3.0)
     a, b = grid_mesh(d, 4.0), grid_mesh(d, 4.0)

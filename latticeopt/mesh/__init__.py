@@ -34,7 +34,7 @@ MESHERS = ("grid", "tetwild")
 #: Grid cell-count rules (:func:`latticeopt.mesh.grid.grid_coordinates`).
 CELL_COUNTS = ("size", "fixed")
 #: Bump when a mesher's output changes for the same inputs, so stale cache entries are not reused.
-MESHER_REVISION = {"grid": 2, "tetwild": 1}
+MESHER_REVISION = {"grid": 3, "tetwild": 1}
 
 
 @dataclass(frozen=True)
