@@ -162,8 +162,8 @@ def grid_mesh(design: LatticeDesign, size_mm: float = 2.0, channel_cells: int = 
     size_mm
         Largest cell edge (mm).
     channel_cells
-        Minimum number of cells across every channel (and across each part of a channel that an electrode
-        edge splits).
+        Minimum number of cells across every channel (on each side of the sensor's centre line; a piece of a
+        channel that electrode edges cut off gets its share, at least one cell).
     layer_cells
         Minimum number of cells through the conductive layer.
     cell_counts
