@@ -70,3 +70,16 @@ def test_physics_keys_match_physics_settings():
         PhysicsSettings(indenter="cone")
     with pytest.raises(ParameterError, match="physics"):
         PhysicsSettings.from_dict({"sigma": 1})
+
+
+def test_mechanics_rtol_is_validated_and_does_not_move_vrel(model, tmp_path):
+    with pytest.raises(ParameterError, match="mechanics_rtol"):
+        PhysicsSettings(mechanics_rtol=0.5)
+    assert model.mechanics.settings.rtol == PhysicsSettings().mechanics_rtol
+    tight = CoupledModel(model.design, COARSE, PhysicsSettings(mechanics_rtol=1e-9), cache_dir=tmp_path)
+    touches = [Touch(35, 60, 8.0, 2.5), Touch(70, 40, 6.5, 1.5)]
+    loose, exact = model.simulate(touches), tight.simulate(touches)
+    assert tight.mechanics.settings.rtol == 1e-9
+    # the default stops well before round-off, yet V_rel agrees far below the mesh error (percent)
+    assert loose.v_rel == pytest.approx(exact.v_rel, rel=1e-4)
+    assert loose.forces_N == pytest.approx(exact.forces_N, rel=1e-3)
