@@ -24,6 +24,7 @@ from pathlib import Path
 
 from .. import _validate as v
 from ..design import LatticeDesign
+from ..errors import ParameterError
 from .tetmesh import FORMAT_VERSION, TetMesh, electrode_name
 
 __all__ = ["MESHERS", "MeshSettings", "TetMesh", "electrode_name", "mesh_design", "default_cache_dir"]
@@ -59,6 +60,11 @@ class MeshSettings:
         ``t`` move) or ``"fixed"`` (counts independent of ``w`` and ``t``, for smooth objectives in an optimizer;
         exactly ``channel_cells`` across channels and ``layer_cells`` through the layer). Left out of
         :meth:`as_dict` at its default, so existing settings keys and mesh cache keys do not change.
+    electrode_edges
+        Grid: put grid lines on the electrode edges (default; exact electrode areas). False leaves them out
+        (with ``cell_counts="size"`` only): the mechanics mesh of :class:`latticeopt.coupled.CoupledModel`,
+        since electrode edges matter only to the electrics and their lines cross the whole sensor. Left out of
+        :meth:`as_dict` at its default.
     """
 
     mesher: str = "grid"
@@ -67,6 +73,7 @@ class MeshSettings:
     layer_cells: int = 2
     epsilon_rel: float = 1e-3
     cell_counts: str = "size"
+    electrode_edges: bool = True
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "mesher", v.choice("mesher", self.mesher, MESHERS))
@@ -75,12 +82,25 @@ class MeshSettings:
         object.__setattr__(self, "layer_cells", v.integer("layer_cells", self.layer_cells, lo=1, hi=32))
         object.__setattr__(self, "epsilon_rel", v.real("epsilon_rel", self.epsilon_rel, lo=1e-5, hi=1e-2))
         object.__setattr__(self, "cell_counts", v.choice("cell_counts", self.cell_counts, CELL_COUNTS))
+        if self.electrode_edges not in (True, False):
+            raise ParameterError("electrode_edges", "true or false", self.electrode_edges)
+        if not self.electrode_edges and (self.mesher != "grid" or self.cell_counts != "size"):
+            raise ParameterError("electrode_edges", "true unless mesher = 'grid' and cell_counts = 'size'",
+                                 self.electrode_edges)
 
     def as_dict(self) -> dict:
         out = dataclasses.asdict(self)
         if out["cell_counts"] == "size":  # the default is implicit: keys computed before the option existed hold
             del out["cell_counts"]
+        if out["electrode_edges"]:
+            del out["electrode_edges"]
         return out
+
+    def for_mechanics(self) -> MeshSettings:
+        """These settings without electrode-edge grid lines where that is possible (grid, ``"size"``)."""
+        if self.mesher == "grid" and self.cell_counts == "size":
+            return dataclasses.replace(self, electrode_edges=False)
+        return self
 
 
 def default_cache_dir() -> Path:
@@ -97,6 +117,7 @@ def mesh_key(design: LatticeDesign, settings: MeshSettings) -> str:
         relevant.pop("channel_cells")
         relevant.pop("layer_cells")
         relevant.pop("cell_counts", None)
+        relevant.pop("electrode_edges", None)
     payload = {"design": design.as_dict(), "settings": relevant, "format": FORMAT_VERSION,
                "revision": MESHER_REVISION[settings.mesher]}
     return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()
@@ -106,7 +127,8 @@ def _build(design: LatticeDesign, settings: MeshSettings) -> TetMesh:
     if settings.mesher == "grid":
         from .grid import grid_mesh
 
-        return grid_mesh(design, settings.size_mm, settings.channel_cells, settings.layer_cells, settings.cell_counts)
+        return grid_mesh(design, settings.size_mm, settings.channel_cells, settings.layer_cells, settings.cell_counts,
+                         settings.electrode_edges)
     from .tetwild import tetwild_mesh
 
     return tetwild_mesh(design, settings.size_mm, settings.epsilon_rel)
