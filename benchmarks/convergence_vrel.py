@@ -39,10 +39,14 @@ def settings_for(size_mm: float) -> MeshSettings:
 
 def _level(text: str) -> MeshSettings:
     try:
-        size, channel, layer = text.split(":")
-        return MeshSettings(size_mm=float(size), channel_cells=int(channel), layer_cells=int(layer))
+        size, channel, layer, *edges = text.split(":")
+        if edges not in ([], ["0"], ["1"]):
+            raise ValueError(text)
+        return MeshSettings(size_mm=float(size), channel_cells=int(channel), layer_cells=int(layer),
+                            electrode_edges=edges != ["0"])
     except ValueError:
-        raise argparse.ArgumentTypeError(f"--levels: expected SIZE:CHANNEL_CELLS:LAYER_CELLS, got {text!r}") from None
+        raise argparse.ArgumentTypeError(
+            f"--levels: expected SIZE:CHANNEL_CELLS:LAYER_CELLS[:ELECTRODE_EDGES 0|1], got {text!r}") from None
 
 
 def _run(args):
@@ -64,15 +68,16 @@ def main() -> None:
     ap.add_argument("--width", type=float, default=4.0)
     ap.add_argument("--thickness", type=float, default=3.0)
     ap.add_argument("--levels", type=_level, nargs="+", default=None,
-                    help="explicit meshes SIZE:CHANNEL_CELLS:LAYER_CELLS (replaces --sizes)")
+                    help="explicit meshes SIZE:CHANNEL_CELLS:LAYER_CELLS[:0] (replaces --sizes; a trailing :0 "
+                         "leaves out the grid lines on electrode edges)")
     a = ap.parse_args()
     levels = a.levels or [settings_for(size) for size in a.sizes]
     design = LatticeDesign(width_mm=a.width, thickness_mm=a.thickness)
     phantoms = [random_phantom(100.0, 1 + i % 3, i // 3, 2025) for i in range(a.phantoms)]
     print(f"load average: {os.getloadavg()[0]:.2f}; {design.describe()}; {a.phantoms} phantoms")
-    print("| size mm | channel cells | layer cells | nodes | mean V_rel | change of mean | per-phantom change | "
-          "s/phantom |")
-    print("|---|---|---|---|---|---|---|---|")
+    print("| size mm | channel cells | layer cells | electrode-edge lines | nodes | mean V_rel | change of mean | "
+          "per-phantom change | s/phantom |")
+    print("|---|---|---|---|---|---|---|---|---|")
     prev = None
     results = []
     for ms in levels:
@@ -90,7 +95,8 @@ def main() -> None:
         else:
             change_mean = f"{abs(vals.mean() - prev.mean()) / vals.mean():.2%}"
             change_each = f"{np.mean(np.abs(vals - prev) / vals):.2%}"
-        print(f"| {ms.size_mm:g} | {ms.channel_cells} | {ms.layer_cells} | {nodes} | {vals.mean():.5f} | "
+        print(f"| {ms.size_mm:g} | {ms.channel_cells} | {ms.layer_cells} | {'yes' if ms.electrode_edges else 'no'} | "
+              f"{nodes} | {vals.mean():.5f} | "
               f"{change_mean} | {change_each} | {np.mean(secs):.1f} |", flush=True)
         prev = vals
         results.append((ms, vals))
@@ -98,7 +104,7 @@ def main() -> None:
     print(f"\nagainst the finest level ({levels[-1].size_mm:g} mm):")
     for ms, vals in results[:-1]:
         change = abs(vals.mean() - ref.mean()) / ref.mean()
-        print(f"  {ms.size_mm:g}:{ms.channel_cells}:{ms.layer_cells}  mean {change:.2%}"
+        print(f"  {ms.size_mm:g}:{ms.channel_cells}:{ms.layer_cells}:{int(ms.electrode_edges)}  mean {change:.2%}"
               f"  per phantom {np.mean(np.abs(vals - ref) / ref):.2%}")
 
 

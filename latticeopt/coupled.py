@@ -8,10 +8,7 @@
 
 Conductivity change under load comes from the deformed geometry alone (DESIGN.md §3): the hydrogel keeps its
 conductivity per unit volume and the electrics are solved on the deformed hydrogel mesh, electrodes moving
-with it. With the grid mesher the mechanics runs on the same grid without the lines on electrode edges
-(:meth:`latticeopt.mesh.MeshSettings.for_mechanics`), and its displacement reaches the electrics mesh through
-its piecewise-linear interpolant (:func:`latticeopt.mesh.grid.grid_interpolation`); both grids have lines on
-every material interface.
+with it.
 
 ``V_rel = mean_i |V_i - V_i_ref| / |V_i_ref|`` over the measurement rows (paper eq. 5). With the adjacent
 protocol the 208 rows are the 104 independent ones twice (reciprocity), so the mean over 208 equals the mean
@@ -40,7 +37,6 @@ from .mechanics.indent import IndentationSolver, IndentSettings
 from .mechanics.indenters import IN_PLANE, INDENTERS, PUNCH_EDGES
 from .mechanics.materials import Materials, NeoHookean
 from .mesh import MeshSettings, mesh_design
-from .mesh.grid import grid_axes, grid_interpolation
 from .touches import Touch
 
 log = logging.getLogger(__name__)
@@ -176,17 +172,6 @@ class CoupledModel:
         :class:`PhysicsSettings` (default values if None).
     cache_dir
         Mesh cache folder (see :func:`latticeopt.mesh.mesh_design`).
-
-    Attributes
-    ----------
-    mesh
-        The electrics mesh (``mesh_settings``).
-    mechanics_mesh
-        The mechanics mesh: ``mesh`` itself, or with the grid mesher the same grid without the electrode-edge
-        lines (:meth:`~latticeopt.mesh.MeshSettings.for_mechanics`) when that has fewer nodes.
-    mechanics, reference
-        The :class:`~latticeopt.mechanics.IndentationSolver` on ``mechanics_mesh`` and the untouched
-        :class:`~latticeopt.electrics.ForwardModel` on ``mesh``.
     """
 
     def __init__(self, design: LatticeDesign, mesh_settings: MeshSettings | None = None,
@@ -194,19 +179,8 @@ class CoupledModel:
         t0 = time.perf_counter()
         self.design = design
         self.physics = physics or PhysicsSettings()
-        self.mesh_settings = settings = mesh_settings or MeshSettings()
-        self.mesh = mesh_design(design, settings, cache_dir=cache_dir)
-        # The mechanics needs no grid lines on the electrode edges (they cross the whole sensor: up to 22 % of
-        # the nodes); its displacement reaches the electrics mesh through its P1 interpolant, whose kinks sit on
-        # the material interfaces, grid lines of both meshes.
-        mech_settings = settings.for_mechanics()
-        self.mechanics_mesh, self._transfer = self.mesh, None
-        if mech_settings != settings:
-            mech = mesh_design(design, mech_settings, cache_dir=cache_dir)
-            if mech.n_nodes < self.mesh.n_nodes:
-                self.mechanics_mesh = mech
-                self._transfer = grid_interpolation(grid_axes(mech), self.mesh.nodes_mm)
-        self.mechanics = IndentationSolver(self.mechanics_mesh, self.physics.indent_settings())
+        self.mesh = mesh_design(design, mesh_settings or MeshSettings(), cache_dir=cache_dir)
+        self.mechanics = IndentationSolver(self.mesh, self.physics.indent_settings())
         p = self.physics
         self.reference = ForwardModel(self.mesh, sigma_S_per_m=p.sigma_S_per_m,
                                       contact_impedance_ohm_m2=p.contact_impedance_ohm_m2, current_A=p.current_A)
@@ -218,10 +192,7 @@ class CoupledModel:
         t0 = time.perf_counter()
         ind = self.mechanics.solve(touches)
         t1 = time.perf_counter()
-        nodes = ind.deformed_mesh.nodes_mm
-        if self._transfer is not None:
-            nodes = self.mesh.nodes_mm + self._transfer @ (nodes - self.mechanics_mesh.nodes_mm)
-        deformed = self.reference.with_nodes(nodes)
+        deformed = self.reference.with_nodes(ind.deformed_mesh.nodes_mm)
         volts = deformed.voltages
         t2 = time.perf_counter()
         return SimulationResult(

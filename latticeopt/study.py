@@ -42,8 +42,7 @@ __all__ = ["DEFAULT_MODEL", "PHYSICS_KEYS", "STUDY_KINDS", "EvalSettings", "Stud
 
 STUDY_KINDS = ("grid", "press")
 #: Bump when the coupled model's results change for the same inputs (stored rows then stop matching).
-MODEL_REVISION = 3  # 2: conforming flat-punch rim, single-precision mechanics tangent; 3: mechanics_rtol 1e-4,
-# the mechanics on the grid without electrode-edge lines
+MODEL_REVISION = 3  # 2: conforming flat-punch rim, single-precision mechanics tangent; 3: mechanics_rtol 1e-4
 #: The evaluation function a study uses unless it names another (``model = "module:function"``).
 DEFAULT_MODEL = "latticeopt.coupled:evaluate_phantom"
 

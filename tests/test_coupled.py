@@ -83,38 +83,3 @@ def test_mechanics_rtol_is_validated_and_does_not_move_vrel(model, tmp_path):
     # the default stops well before round-off, yet V_rel agrees far below the mesh error (percent)
     assert loose.v_rel == pytest.approx(exact.v_rel, rel=1e-4)
     assert loose.forces_N == pytest.approx(exact.forces_N, rel=1e-3)
-
-
-@pytest.fixture(scope="module")
-def split_model(tmp_path_factory):
-    """w = 3 on a 4 mm grid: the mechanics grid leaves out the electrode-edge lines (35 instead of 43 per side)."""
-    return CoupledModel(LatticeDesign(width_mm=3, thickness_mm=2), MeshSettings(size_mm=4.0, channel_cells=1,
-                                                                                 layer_cells=1),
-                        PhysicsSettings(mechanics_rtol=1e-8), cache_dir=tmp_path_factory.mktemp("meshes"))
-
-
-def test_split_mechanics_mesh_is_coarser_and_transfers_nothing_at_zero_depth(split_model):
-    assert split_model.mechanics_mesh.n_nodes < split_model.mesh.n_nodes
-    res = split_model.simulate([Touch(50, 50, 8.0, 0.0)])
-    assert res.v_rel == pytest.approx(0.0, abs=1e-12)
-    np.testing.assert_allclose(res.voltages, split_model.reference_voltages, rtol=1e-12)
-
-
-def test_split_mechanics_mesh_keeps_the_mirror_symmetry(split_model):
-    # the transfer locates nodes in mirrored Kuhn cells beyond the middle: a wrong flip breaks this
-    a = split_model.simulate([Touch(30, 40, 7.0, 1.5)])
-    b = split_model.simulate([Touch(70, 40, 7.0, 1.5)])
-    c = split_model.simulate([Touch(40, 70, 7.0, 1.5)])
-    assert a.v_rel == pytest.approx(b.v_rel, rel=1e-6) and a.v_rel == pytest.approx(c.v_rel, rel=1e-6)
-
-
-def test_split_mechanics_mesh_agrees_with_the_full_grid(split_model, tmp_path, monkeypatch):
-    touches = [Touch(35, 60, 8.0, 2.5), Touch(70, 35, 6.5, 1.5)]
-    split = split_model.simulate(touches)
-    monkeypatch.setattr(MeshSettings, "for_mechanics", lambda self: self)
-    full = CoupledModel(split_model.design, split_model.mesh_settings, split_model.physics, cache_dir=tmp_path)
-    assert full.mechanics_mesh is full.mesh
-    same = full.simulate(touches)
-    # a different mechanics discretisation of the same press: V_rel within the coarse mesh's error (1 % here;
-    # the forces, a mechanics-only quantity, differ by 13 % on this 4 mm mesh and by 3-5 % at 2 mm)
-    assert split.v_rel == pytest.approx(same.v_rel, rel=0.03)

@@ -12,7 +12,7 @@ from latticeopt.errors import ParameterError
 from latticeopt.mesh import MeshSettings, TetMesh, electrode_name, mesh_design, mesh_key
 from latticeopt.mesh import grid as grid_module
 from latticeopt.mesh.facets import boundary_faces, tag_facets
-from latticeopt.mesh.grid import grid_axes, grid_coordinates, grid_interpolation, grid_mesh
+from latticeopt.mesh.grid import grid_coordinates, grid_mesh
 from latticeopt.mesh.tetmesh import TET_FACES, face_keys, triangle_areas
 
 DESIGNS = [
@@ -403,7 +403,7 @@ def test_concurrent_builders_of_one_mesh_do_not_collide(tmp_path):
     assert len(list(tmp_path.glob("*.npz"))) == 1 and not list(tmp_path.glob("*.part"))
 
 
-# -- the mechanics grid without electrode-edge lines, and the interpolation onto the full grid ---------------
+# -- the grid without electrode-edge lines ----------------------------------------------------------------
 @pytest.mark.parametrize("width_mm", [0.0, 2.0, 3.0, 4.0, 5.0, 6.0])
 def test_grid_without_electrode_edges_keeps_every_material_interface(width_mm):
     d = LatticeDesign(width_mm=width_mm, thickness_mm=1.0)
@@ -415,53 +415,28 @@ def test_grid_without_electrode_edges_keeps_every_material_interface(width_mm):
     assert len(part[0]) <= len(full[0]) and np.all(np.diff(part[0]) <= 2.0 + 1e-9)
     edges = np.r_[d.electrodes()[:4, 0] - d.electrode_width_mm / 2, d.electrodes()[:4, 0] + d.electrode_width_mm / 2]
     edges = edges[np.min(np.abs(edges[:, None] - features[None, :]), axis=1) > 1e-9]
-    # electrode edges that are no material interface are no grid lines (they only matter to the electrics)
+    # electrode edges that are no material interface are no grid lines (electrode triangles get weights)
     assert width_mm == 4.0 or len(edges) == 8
     assert not np.any(np.min(np.abs(part[0][:, None] - edges[None, :]), axis=0) < 1e-9)
 
 
 def test_electrode_edges_setting_is_validated_and_keyed():
     assert "electrode_edges" not in MeshSettings().as_dict()
-    assert MeshSettings().for_mechanics().electrode_edges is False
-    assert MeshSettings(mesher="tetwild").for_mechanics().electrode_edges is True
-    assert MeshSettings(cell_counts="fixed").for_mechanics().electrode_edges is True
+    assert MeshSettings(electrode_edges=False).as_dict()["electrode_edges"] is False
     with pytest.raises(ParameterError, match="electrode_edges"):
         MeshSettings(cell_counts="fixed", electrode_edges=False)
     d = LatticeDesign()
     assert mesh_key(d, MeshSettings()) != mesh_key(d, MeshSettings(electrode_edges=False))
 
 
-def test_grid_interpolation_is_the_p1_field_of_the_coarse_mesh():
-    d = LatticeDesign(width_mm=3.0, thickness_mm=2.0)
-    coarse = grid_mesh(d, 4.0, 2, 1, electrode_edges=False)
-    fine = grid_mesh(d, 4.0, 2, 1)
-    assert coarse.n_nodes < fine.n_nodes
-    axes = grid_axes(coarse)
-    # exact at the coarse nodes, and for affine fields everywhere
-    identity = grid_interpolation(axes, coarse.nodes_mm)
-    assert abs(identity - np.eye(coarse.n_nodes)).max() == 0.0
-    A, b = np.array([[0.3, -1.2, 0.5], [2.0, 0.1, -0.7], [0.4, 0.9, 1.1]]), np.array([1.0, -2.0, 0.5])
-    P = grid_interpolation(axes, fine.nodes_mm)
-    np.testing.assert_allclose(P @ (coarse.nodes_mm @ A + b), fine.nodes_mm @ A + b, atol=1e-11)
-    # a random nodal field: equal to barycentric interpolation in the containing tet, found by brute force
-    rng = np.random.default_rng(3)
-    u = rng.standard_normal(coarse.n_nodes)
-    pts = rng.uniform(0, 1, (60, 3)) * [d.size_mm, d.size_mm, d.total_thickness_mm]
-    X = coarse.nodes_mm[coarse.tets]
-    Tinv = np.linalg.inv(np.transpose(X[:, 1:] - X[:, :1], (0, 2, 1)))
-    Q = grid_interpolation(axes, pts)
-    for k, p in enumerate(pts):
-        lam = np.einsum("mij,mj->mi", Tinv, p - X[:, 0])
-        bary = np.c_[1 - lam.sum(1), lam]
-        m = np.argmax(bary.min(axis=1))
-        assert bary[m].min() > -1e-12
-        assert Q[k] @ u == pytest.approx(bary[m] @ u[coarse.tets[m]], abs=1e-12)
-
-
-def test_grid_axes_survive_the_cache(tmp_path):
-    d = LatticeDesign(width_mm=5.0)
-    s = MeshSettings(size_mm=4.0, channel_cells=1, layer_cells=1, electrode_edges=False)
-    built, cached = mesh_design(d, s, cache_dir=tmp_path), mesh_design(d, s, cache_dir=tmp_path)
-    assert cached.info["cached"]
-    for a, b, c in zip(grid_axes(built), grid_axes(cached), grid_coordinates(d, 4.0, 1, 1, electrode_edges=False)):
-        assert np.array_equal(a, b) and np.allclose(a, c)
+@pytest.mark.parametrize("width_mm", [0.0, 3.0, 6.0])
+def test_grid_without_electrode_edges_weights_give_the_exact_electrode_areas(width_mm):
+    d = LatticeDesign(width_mm=width_mm, thickness_mm=2.0)
+    mesh = grid_mesh(d, 2.0, 2, 2, electrode_edges=False)
+    areas = []
+    for k in range(16):
+        name = electrode_name(k + 1)
+        tri = mesh.facets[name]
+        areas.append(float(np.sum(triangle_areas(mesh.nodes_mm, tri) * mesh.weights(name))))
+    # t high, electrode_width wide, whichever grid lines the electrode's edges fall between
+    np.testing.assert_allclose(areas, d.thickness_mm * d.electrode_width_mm, rtol=1e-9)

@@ -47,13 +47,12 @@ def run_simulate(args) -> int:
     res = model.simulate(touches)
     out = res.summary()
     out.update({"design": design.as_dict(), "physics": physics.as_dict(), "nodes": model.mesh.n_nodes,
-                "mechanics_nodes": model.mechanics_mesh.n_nodes,
                 "reference_voltages": res.reference_voltages.tolist(), "setup_seconds": model.setup_seconds,
                 "seconds": time.perf_counter() - t0})
     if args.json:
         emit_json(out)
         return 0
-    print(f"{design.describe()}; mesh {model.mesh.n_nodes} nodes (mechanics {model.mechanics_mesh.n_nodes})")
+    print(f"{design.describe()}; mesh {model.mesh.n_nodes} nodes")
     for i, (t, f) in enumerate(zip(touches, res.forces_N)):
         print(f"touch {i + 1}: ({t.x_mm:g}, {t.y_mm:g}) mm, r = {t.radius_mm:g} mm, d = {t.depth_mm:g} mm -> "
               f"force {f:.4g} N")

@@ -61,10 +61,10 @@ class MeshSettings:
         exactly ``channel_cells`` across channels and ``layer_cells`` through the layer). Left out of
         :meth:`as_dict` at its default, so existing settings keys and mesh cache keys do not change.
     electrode_edges
-        Grid: put grid lines on the electrode edges (default; exact electrode areas). False leaves them out
-        (with ``cell_counts="size"`` only): the mechanics mesh of :class:`latticeopt.coupled.CoupledModel`,
-        since electrode edges matter only to the electrics and their lines cross the whole sensor. Left out of
-        :meth:`as_dict` at its default.
+        Grid: put grid lines on the electrode edges (default: every electrode triangle fully covered). False
+        leaves them out (``cell_counts="size"`` only): those lines cross the whole sensor, up to 22 % of the
+        nodes, and the triangles an electrode edge cuts enter the electrode with their covered fraction. Left
+        out of :meth:`as_dict` at its default.
     """
 
     mesher: str = "grid"
@@ -95,12 +95,6 @@ class MeshSettings:
         if out["electrode_edges"]:
             del out["electrode_edges"]
         return out
-
-    def for_mechanics(self) -> MeshSettings:
-        """These settings without electrode-edge grid lines where that is possible (grid, ``"size"``)."""
-        if self.mesher == "grid" and self.cell_counts == "size":
-            return dataclasses.replace(self, electrode_edges=False)
-        return self
 
 
 def default_cache_dir() -> Path:

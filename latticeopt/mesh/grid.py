@@ -12,7 +12,6 @@ from __future__ import annotations
 from itertools import permutations
 
 import numpy as np
-import scipy.sparse as sp
 
 from ..design import LatticeDesign
 from .facets import tag_facets
@@ -90,8 +89,9 @@ def grid_coordinates(design: LatticeDesign, size_mm: float, channel_cells: int, 
     local optimizer needs). In the default layout the one exception is ``w`` exactly equal to the electrode width,
     where channel and electrode edges merge; the meshes on either side converge to that one. The conductive
     layer gets exactly ``layer_cells`` cells; a channel ``max(channel_cells, ceil(electrode width / size))``.
-    ``electrode_edges=False`` (``"size"`` only) leaves out the lines on electrode edges; every material
-    interface (channel edges, layer faces) is still a grid line.
+    ``electrode_edges=False`` (``"size"`` only) leaves out the lines on electrode edges (they cross the whole
+    sensor); every material interface (channel edges, layer faces) is still a grid line, and triangles the
+    electrode edges cut get partial-coverage weights (:func:`~latticeopt.mesh.facets.tag_facets`).
     """
     if not electrode_edges and cell_counts != "size":
         raise ValueError("electrode_edges=False needs cell_counts='size'")
@@ -175,8 +175,7 @@ def grid_mesh(design: LatticeDesign, size_mm: float = 2.0, channel_cells: int = 
     cell_counts
         ``"size"`` or ``"fixed"`` (counts independent of ``w`` and ``t``; see :func:`grid_coordinates`).
     electrode_edges
-        False: no grid lines on the electrode edges (the coupled model's mechanics mesh); the electrode facets
-        then carry partial-coverage weights.
+        False: no grid lines on the electrode edges; the electrode facets then carry partial-coverage weights.
 
     Returns
     -------
@@ -196,55 +195,3 @@ def grid_mesh(design: LatticeDesign, size_mm: float = 2.0, channel_cells: int = 
     return TetMesh(nodes, tets, region, facets, weights,
                    {"mesher": "grid", "grid_shape": [len(x), len(y), len(z)]})
 
-
-def grid_axes(mesh: TetMesh) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The x, y and z grid lines of a :func:`grid_mesh` (mm), read back from its nodes (x fastest)."""
-    nx, ny, nz = (int(n) for n in mesh.info["grid_shape"])
-    nodes = mesh.nodes_mm
-    return nodes[:nx, 0].copy(), nodes[: nx * ny : nx, 1].copy(), nodes[:: nx * ny, 2].copy()
-
-
-def grid_interpolation(axes: tuple[np.ndarray, np.ndarray, np.ndarray], points_mm: np.ndarray) -> sp.csr_matrix:
-    """Matrix of the piecewise-linear interpolation from the nodes of a Kuhn-split grid to ``points_mm``.
-
-    Each point is located in its cell (clipped to the grid's box) and in the one tet of the cell's six
-    (:func:`_kuhn_tets`, mirrored beyond the middle) that holds it: with ``s`` the point's local coordinates in
-    the cell's unmirrored frame, sorted ``s_a >= s_b >= s_c``, that is the tet of the path ``0 -> e_a ->
-    e_a + e_b -> 1`` with barycentric weights ``1 - s_a, s_a - s_b, s_b - s_c, s_c``. So the result is exactly
-    the P1 finite-element field of the grid's mesh.
-
-    Parameters
-    ----------
-    axes
-        The grid lines ``(x, y, z)`` (mm), as from :func:`grid_axes`.
-    points_mm
-        Where to interpolate, shape ``(P, 3)``.
-
-    Returns
-    -------
-    scipy.sparse.csr_matrix, shape ``(P, len(x) * len(y) * len(z))``
-    """
-    p = np.asarray(points_mm, dtype=float)
-    x, y, z = axes
-    cell, local = [], []
-    for c, q in zip(axes, p.T):
-        i = np.clip(np.searchsorted(c, q, side="right") - 1, 0, len(c) - 2)
-        cell.append(i)
-        local.append(np.clip((q - c[i]) / (c[i + 1] - c[i]), 0.0, 1.0))
-    flip = [0.5 * (c[i] + c[i + 1]) > 0.5 * (c[0] + c[-1]) for c, i in zip(axes[:2], cell[:2])] + [
-        np.zeros(len(p), dtype=bool)]
-    s = np.stack([np.where(f, 1.0 - t, t) for f, t in zip(flip, local)], axis=1)
-    order = np.argsort(-s, axis=1, kind="stable")
-    ss = np.take_along_axis(s, order, axis=1)
-    weights = np.stack([1.0 - ss[:, 0], ss[:, 0] - ss[:, 1], ss[:, 1] - ss[:, 2], ss[:, 2]], axis=1)
-    corner = np.zeros((len(p), 3), dtype=np.int64)
-    cols = []
-    nx, ny = len(x), len(y)
-    for step in range(4):
-        if step:
-            corner[np.arange(len(p)), order[:, step - 1]] = 1
-        b = [np.where(f, 1 - corner[:, a], corner[:, a]) for a, f in enumerate(flip)]
-        cols.append((cell[0] + b[0]) + nx * ((cell[1] + b[1]) + ny * (cell[2] + b[2])))
-    rows = np.repeat(np.arange(len(p)), 4)
-    return sp.csr_matrix((weights.ravel(), (rows, np.stack(cols, axis=1).ravel())),
-                         shape=(len(p), nx * ny * len(z)))
