@@ -4,18 +4,21 @@
                                      [--designs 4,3 0,1 6,1 0,5 6,5 | --designs paper]
 
 For each design (width,thickness in mm; default: the default design only; ``paper``: all 30 designs of
-studies/paper_fig4.toml, the honest figure for the map) it times phantoms of
+studies/paper_fig4.toml, the honest figure for the map), on paper_fig4.toml's mesh (``--size`` and
+``--channel-cells`` override it), it times phantoms of
 studies/paper_fig4.toml's phantom set (1, 2 and 3 touches in turn) split into set-up (mesh read, mechanics
 operator, reference electrics), mechanics and electrics, with one worker and then with two processes (one BLAS
 thread each). The paper map (30 designs x 300 phantoms) is extrapolated from the steady-state throughput --
 workers / mean seconds per phantom measured while all workers run, averaged over the designs given -- plus one
-set-up per design. The cost depends on the design (thicker hydrogel, more DOFs), so pass the corners of the
-grid for an honest figure. Run it on a quiet machine: it prints the load average it saw.
+set-up per design. The cost depends on the design (a narrow channel or gap adds grid lines across the whole
+sensor), so time ``--designs paper`` for an honest figure. A phantom whose mechanics fails counts as failed,
+its time still counted. Run it on a quiet machine: it prints the load average it saw.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -26,9 +29,9 @@ for _var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
 
 import numpy as np  # noqa: E402
 
-from latticeopt import LatticeDesign, MeshSettings  # noqa: E402
+from latticeopt import LatticeDesign  # noqa: E402
 from latticeopt.coupled import CoupledModel  # noqa: E402
-from latticeopt.errors import ConvergenceError  # noqa: E402
+from latticeopt.errors import ConvergenceError, MeshError  # noqa: E402
 from latticeopt.mesh import mesh_design  # noqa: E402
 from latticeopt.phantoms import random_phantom  # noqa: E402
 from latticeopt.study import load_study  # noqa: E402
@@ -42,17 +45,16 @@ def _phantoms(n: int, seed: int = 2025):
 
 
 def _run(args):
-    (w, t), size, cells, phantoms = args
+    (w, t), mesh_settings, phantoms = args
     t0 = time.perf_counter()
-    model = CoupledModel(LatticeDesign(width_mm=w, thickness_mm=t), MeshSettings(size_mm=size, channel_cells=cells),
-                         cache_dir=CACHE)
+    model = CoupledModel(LatticeDesign(width_mm=w, thickness_mm=t), mesh_settings, cache_dir=CACHE)
     setup = time.perf_counter() - t0
     rows = []
     for ph in phantoms:
         t1 = time.perf_counter()
         try:
             res = model.simulate(ph.touches)
-        except ConvergenceError:  # counted, and its time still counts (a sweep spends it too)
+        except (ConvergenceError, MeshError):  # counted, and its time still counts (a sweep spends it too)
             rows.append((np.nan, np.nan, np.nan, np.nan, time.perf_counter() - t1))
             continue
         rows.append((res.timings["mechanics"], res.timings["electrics"], res.v_rel, res.newton_steps,
@@ -73,19 +75,22 @@ def _design(text: str) -> tuple[float, float] | str:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--size", type=float, default=MeshSettings().size_mm)
-    ap.add_argument("--channel-cells", type=int, default=MeshSettings().channel_cells)
+    ap.add_argument("--size", type=float, default=None, help="grid size (mm; default: paper_fig4.toml's)")
+    ap.add_argument("--channel-cells", type=int, default=None, help="default: paper_fig4.toml's")
     ap.add_argument("--phantoms", type=int, default=6)
     ap.add_argument("--workers", type=int, nargs="+", default=[1, 2])
     ap.add_argument("--designs", type=_design, nargs="+", default=[(4.0, 3.0)],
                     help="WIDTH,THICKNESS pairs in mm (default: 4,3), or 'paper' for the 30 designs of paper_fig4.toml")
     a = ap.parse_args()
+    paper = load_study(ROOT / "studies" / "paper_fig4.toml")
     if "paper" in a.designs:
-        a.designs = [(d.width_mm, d.thickness_mm) for d in load_study(ROOT / "studies" / "paper_fig4.toml").designs]
+        a.designs = [(d.width_mm, d.thickness_mm) for d in paper.designs]
+    mesh = paper.settings.mesh  # the converged mesh of the map
+    mesh = dataclasses.replace(mesh, size_mm=mesh.size_mm if a.size is None else a.size,
+                               channel_cells=mesh.channel_cells if a.channel_cells is None else a.channel_cells)
     phantoms = _phantoms(a.phantoms)
     print(f"load average before: {os.getloadavg()[0]:.2f} (2 cores)")
-    print(f"grid mesh size {a.size} mm, {a.channel_cells} channel cells; {a.phantoms} phantoms (1-3 touches) "
-          f"per design")
+    print(f"mesh {mesh.as_dict()}; {a.phantoms} phantoms (1-3 touches) per design")
     print("| design w,t mm | nodes | workers | set-up s | mechanics s / phantom | linear solves | electrics s | "
           "seconds / phantom | throughput s / phantom | failed |")
     print("|---|---|---|---|---|---|---|---|---|---|")
@@ -93,12 +98,11 @@ def main() -> None:
     setups = []
     for design in a.designs:
         # mesh once here, so the workers read the cache instead of meshing side by side
-        mesh_design(LatticeDesign(width_mm=design[0], thickness_mm=design[1]),
-                    MeshSettings(size_mm=a.size, channel_cells=a.channel_cells), cache_dir=CACHE)
+        mesh_design(LatticeDesign(width_mm=design[0], thickness_mm=design[1]), mesh, cache_dir=CACHE)
         for workers in a.workers:
             chunks = [phantoms[i::workers] for i in range(workers)]
             with ProcessPoolExecutor(workers) as ex:
-                out = list(ex.map(_run, [(design, a.size, a.channel_cells, c) for c in chunks]))
+                out = list(ex.map(_run, [(design, mesh, c) for c in chunks]))
             rows = [r for _, rr, _ in out for r in rr]
             setup = float(np.mean([s for s, _, _ in out]))
             setups.append(setup)
