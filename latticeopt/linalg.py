@@ -149,7 +149,7 @@ class SymmetricSolver:
 
             # only the upper triangle is read, as by PARDISO (the mechanics passes nothing else)
             upper = sp.triu(A, format="csc")
-            full = (upper + sp.triu(A, k=1, format="csc").T).tocsc()
+            full = (upper + sp.triu(upper, k=1).T).tocsc()
             self._lu = splu(full, permc_spec="MMD_AT_PLUS_A")
             return
         if self._is_stored_pattern(A):  # already the analysed upper triangle (mechanics): skip the rebuild
@@ -232,7 +232,6 @@ def gmres(matvec, b: np.ndarray, precondition, atol: float, maxiter: int) -> tup
     H = np.zeros((maxiter + 1, maxiter))
     e1 = np.zeros(maxiter + 1)
     e1[0] = beta
-    y, res = np.zeros(0), beta
     for k in range(maxiter):
         Z.append(precondition(V[k]))
         w = matvec(Z[k])

@@ -97,21 +97,25 @@ def grid_coordinates(design: LatticeDesign, size_mm: float, channel_cells: int, 
         raise ValueError("electrode_edges=False needs cell_counts='size'")
     iv, centre = design.channel_intervals_mm(), design.size_mm / 2
 
-    def in_channel(a: float, b: float) -> int:
+    def channel_of(a: float, b: float) -> np.ndarray | None:
+        """The channel interval holding the piece ``[a, b]``, or None."""
         mid = 0.5 * (a + b)
-        return channel_cells if np.any((iv[:, 0] <= mid) & (mid <= iv[:, 1])) else 1
+        hit = (iv[:, 0] <= mid) & (mid <= iv[:, 1])
+        return iv[np.argmax(hit)] if hit.any() else None
+
+    def in_channel(a: float, b: float) -> int:
+        return 1 if channel_of(a, b) is None else channel_cells
 
     def channel_share(a: float, b: float) -> int:
         # Each side of the centre line of a channel gets channel_cells, a piece of it that electrode edges cut
         # off only its share. channel_cells per piece made 0.25-0.5 mm slivers at w > electrode width (grid
         # lines across the whole sensor, 21 % more nodes) and moved V_rel by < 0.03 %; the centre channel's
         # halves keep theirs (halving them moved V_rel 0.6 % at w = 4: the centre is where touches land).
-        mid = 0.5 * (a + b)
-        hit = (iv[:, 0] <= mid) & (mid <= iv[:, 1])
-        if not hit.any():
+        channel = channel_of(a, b)
+        if channel is None:
             return 1
-        lo, hi = iv[np.argmax(hit)]
-        lo, hi = (lo, min(hi, centre)) if mid < centre else (max(lo, centre), hi)
+        lo, hi = channel
+        lo, hi = (lo, min(hi, centre)) if 0.5 * (a + b) < centre else (max(lo, centre), hi)
         return int(np.ceil(channel_cells * (b - a) / (hi - lo) - 1e-9))
 
     xb, yb = _axis_breakpoints(design, 0, electrode_edges), _axis_breakpoints(design, 1, electrode_edges)
