@@ -36,7 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..mesh.tetmesh import TetMesh
-from ._kernels import kinematics, patch_tangents, tet_forces, tet_tangents
+from ._kernels import kinematics, patch_tangents, tet_forces
 from .materials import Materials
 
 log = logging.getLogger(__name__)
@@ -190,6 +190,7 @@ class NeoHookeanOperator:
         self.patch_nodes[upatch, slot] = ukey % self.n_nodes
         self._tet_slot = slot[inv.ravel()].reshape(M, 4)  # local position in the patch of each tet node
         self._kmax = kmax
+        self._patch_starts = np.searchsorted(self.patch, np.arange(P + 1))
 
     def _build_pattern(self) -> None:
         P = self.n_patches
@@ -212,15 +213,6 @@ class NeoHookeanOperator:
         self.indices = cols.astype(np.int64)
         self.rows = rows
         self.diag_pos = np.searchsorted(keys, np.arange(n) * (n + 1))
-        # tet blocks: 78 upper pairs of the 12 local dofs (row-major), mapped to their slot in the patch block;
-        # padding of the patch blocks goes to the spare slot ``nnz``, which is dropped
-        pi, pj = _upper_pairs(12)
-        la, li, lb, lk = pi // 3, pi % 3, pj // 3, pj % 3
-        r = 3 * self._tet_slot[:, la] + li
-        c = 3 * self._tet_slot[:, lb] + lk
-        r, c = np.minimum(r, c), np.maximum(r, c)
-        local = r * nk - r * (r - 1) // 2 + (c - r)
-        self._tet_slots = np.ascontiguousarray(self._patch_map.ravel()[self.patch[:, None] * len(qi) + local])
 
     # -- kinematics ---------------------------------------------------------------------------------
     def _kinematics(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -264,11 +256,10 @@ class NeoHookeanOperator:
         if not tangent:
             return Evaluation(energy, R, None, min_J, min_Jbar)
         data = np.zeros(self.nnz + 1)
-        tet_tangents(self.grad, F, cof, c, w, I1, self._tet_slots, data)
         qi, qj = self._patch_pairs
         Upp = 0.5 * kap * (1.0 + 1.0 / Jbar ** 2)
-        patch_tangents(self.grad, cof, v_e, self.patch, self._tet_slot, Upp / self.patch_vol, self._kmax, qi, qj,
-                       self._patch_map, data)
+        patch_tangents(self.grad, F, cof, c, w, I1, v_e, self._patch_starts, self._tet_slot, Upp / self.patch_vol,
+                       qi, qj, self._patch_map, data)
         data = data[:-1]
         return Evaluation(energy, R, data, min_J, min_Jbar)
 
