@@ -209,8 +209,10 @@ class NeoHookeanOperator:
         pmap[valid] = inv.ravel()
         self._patch_map = pmap
         rows, cols = keys // n, keys % n
-        self.indptr = np.r_[0, np.cumsum(np.bincount(rows, minlength=n))].astype(np.int64)
-        self.indices = cols.astype(np.int64)
+        # int32 where it fits: a third less memory traffic in GMRES's products than int64 indices
+        index = np.int32 if self.nnz < 2**31 - 1 else np.int64
+        self.indptr = np.r_[0, np.cumsum(np.bincount(rows, minlength=n))].astype(index)
+        self.indices = cols.astype(index)
         self.rows = rows
         self.diag_pos = np.searchsorted(keys, np.arange(n) * (n + 1))
 
