@@ -14,9 +14,9 @@ every tet its own patch (plain P1, locks) for comparison. Evidence: ``benchmarks
 
 All F-dependent quantities are computed once per tet (``F``, ``J``, ``F^-T``, the spatial gradients
 ``h_a = F^-T grad N_a``) and the 12 x 12 tet tangents are built from outer products of those, never per
-pair of basis functions. Only the upper triangle is formed, and it is scattered into a fixed CSR pattern
-through index maps built once in ``__init__`` (``np.bincount``), so every Newton step of every phantom
-reuses the pattern (and PARDISO's symbolic factorization).
+pair of basis functions. Each patch's tet blocks and mean-dilatation block are summed in a dense patch block
+whose upper triangle is added to a fixed CSR pattern through an index map built once in ``__init__``, so every
+Newton step of every phantom reuses the pattern (and PARDISO's symbolic factorization).
 
 Tangent per tet, with ``g_a`` reference gradients, ``f_a = F g_a``, ``h_a = F^-T g_a``, ``c = V mu J^-2/3``::
 
