@@ -101,7 +101,7 @@ def patch_tangents(grad, F, Finv_T, c, w, I1, v_e, starts, tet_slot, coef, qi, q
     data : (nnz + 1,)
         CSR values, accumulated in place (the last entry absorbs padding).
     """
-    nk = int(np.sqrt(2 * qi.shape[0] + 0.25) - 0.5)  # len(qi) = nk (nk + 1) / 2
+    nk = qj[-1] + 1  # the last upper pair is (nk - 1, nk - 1)
     B = np.zeros((nk, nk))
     gbar = np.zeros(nk)
     h = np.empty((4, 3))

@@ -96,7 +96,7 @@ class IndentationSolver:
         self._ev0 = self.op.evaluate(np.zeros((mesh.n_nodes, 3)))
         isD = np.zeros(n, dtype=bool)
         isD[(3 * self.bottom_nodes[:, None] + np.arange(3)).ravel()] = True
-        self._zeroed_for = self._zeroed = None  # see _matrix
+        self._zeroed_for = self._zeroed = None  # see _constrained
         # symbolic analysis only: every phantom factorizes its own tangent (same pattern)
         self.linear = SymmetricSolver(self._matrix(self._ev0.data, isD), positive_definite="auto",
                                       backend=settings.backend, factorize=False, precision=settings.precision)
@@ -105,8 +105,8 @@ class IndentationSolver:
                  self.linear.backend, self.setup_seconds)
 
     # -- linear algebra ------------------------------------------------------------------------------
-    def _matrix(self, data: np.ndarray, isD: np.ndarray) -> sp.csr_matrix:
-        """Tangent with constrained rows and columns zeroed (diagonal kept): same pattern every time."""
+    def _constrained(self, data: np.ndarray, isD: np.ndarray) -> np.ndarray:
+        """Tangent values with constrained rows and columns zeroed (diagonal kept), on the operator's pattern."""
         op = self.op
         if self._zeroed_for is None or not np.array_equal(isD, self._zeroed_for):
             # off-diagonal entries in a constrained row or column; the set rarely changes (7 ms to find it)
@@ -115,7 +115,12 @@ class IndentationSolver:
             self._zeroed_for = isD.copy()
         out = data.copy()
         out[self._zeroed] = 0.0
-        return sp.csr_matrix((out, op.indices, op.indptr), shape=(op.n_dofs, op.n_dofs))
+        return out
+
+    def _matrix(self, data: np.ndarray, isD: np.ndarray) -> sp.csr_matrix:
+        """:meth:`_constrained` as the upper-triangle CSR matrix: same pattern every time."""
+        op = self.op
+        return sp.csr_matrix((self._constrained(data, isD), op.indices, op.indptr), shape=(op.n_dofs, op.n_dofs))
 
     def _free_rhs(self, ev: Evaluation, D: np.ndarray, jump: np.ndarray, R: np.ndarray) -> np.ndarray:
         """``-R - K lift(jump)``: the Newton right-hand side on the free DOFs (constrained rows still to set)."""
@@ -357,7 +362,7 @@ class IndentationSolver:
         t = time.perf_counter()
         b = self._free_rhs(ev, D, jump, R)
         b[D] = 0.0  # du = jump there exactly; GMRES solves for the free part
-        matvec = self._symmetric_operator(self._matrix(ev.data, isD).data)
+        matvec = self._symmetric_operator(self._constrained(ev.data, isD))
 
         def precondition(r):
             return self.linear.solve(r).ravel()

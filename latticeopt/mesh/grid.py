@@ -198,4 +198,3 @@ def grid_mesh(design: LatticeDesign, size_mm: float = 2.0, channel_cells: int = 
     facets, weights = tag_facets(nodes, tets, region, design, tol_mm=1e-7 * design.size_mm)
     return TetMesh(nodes, tets, region, facets, weights,
                    {"mesher": "grid", "grid_shape": [len(x), len(y), len(z)]})
-
