@@ -118,11 +118,16 @@ class _Pool:
     def close(self, abort: bool) -> None:
         if abort:
             procs = list(getattr(self._ex, "_processes", {}).values())  # no public way to stop running tasks
+            manager = getattr(self._ex, "_executor_manager_thread", None)  # shutdown() forgets it
             self._ex.shutdown(wait=False, cancel_futures=True)
             for p in procs:
                 p.terminate()
             for p in procs:
                 p.join(5)
+            if manager is not None:
+                # CPython 3.11's exit hook can write to this thread's wakeup pipe while the thread closes it (a
+                # stray "Bad file descriptor" traceback after Ctrl-C, seen once in CI): let it finish first
+                manager.join(5)
         else:
             self._ex.shutdown(wait=True)
 
