@@ -5,20 +5,25 @@ Coordinates (mm): the sensor occupies ``[0, L] x [0, L] x [0, H]`` with ``z = 0`
 ``[s, s + t]`` (hydrogel lattice plus silicone islands), silicone sealing ``[s + t, H]`` with
 ``s = H - sealing - t``.
 
-Square pattern: hydrogel channels of width ``w`` centred on the lines ``x = k p`` and ``y = k p``
-(``k = 0, 1, ...`` while ``k p <= L``) plus a rim line at ``L``; channels are clipped to the sensor, so the rim
-carries a half-width channel and every side wall of the conductive layer is hydrogel. ``w = 0`` means no
-lattice: the whole conductive layer is hydrogel.
+The conductive layer is a 2D layout of hydrogel polygons (:mod:`latticeopt.layout`: the ``square``,
+``hexagonal``, ``triangular`` and ``diagonal`` families, or ``custom`` polygons) extruded through ``t``.
+``w = 0`` means no lattice: the whole conductive layer is hydrogel. The rim is a design parameter: ``rim =
+"none"`` (default) leaves the band along the sensor's sides silicone, so the channels end on the electrodes;
+``rim = "channel"`` runs a half-width hydrogel channel round the rim, which shunts current between
+neighbouring electrodes (see the README for what it does to ``V_rel``); ``frame_mm`` insets the lattice by a
+silicone border.
 
 Electrodes: ``n_electrodes / 4`` per side on the side walls of the conductive layer, centred at
-``(k + 1/2) L / (n / 4)`` along the side, ``electrode_width_mm`` wide and ``t`` high. Numbered
-counter-clockwise seen from above starting with electrode 1 on the side ``y = 0`` at the smallest ``x``;
-arrays in the API are 0-based (index 0 is electrode 1).
+``electrode_positions_mm`` along each side (measured counter-clockwise from the side's first corner; default
+``(k + 1/2) L / (n / 4)``), ``electrode_width_mm`` wide and ``t`` high. Numbered counter-clockwise seen from
+above starting with electrode 1 on the side ``y = 0`` at the smallest ``x``; arrays in the API are 0-based
+(index 0 is electrode 1). Every electrode must touch hydrogel.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import json
 from dataclasses import dataclass
@@ -26,9 +31,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import _validate as v
+from . import layout as _layout
 from .errors import ParameterError
+from .layout import PATTERNS, RIMS
 
-PATTERNS = ("square",)
+#: Narrowest channel (mm): below it a layout is no longer castable, and meshes of it degenerate.
+MIN_WIDTH_MM = 0.05
 
 #: Region ids used for tet labels everywhere (meshes, VTU cell data, mechanics materials).
 REGION_IDS = {"substrate": 0, "hydrogel": 1, "islands": 2, "sealing": 3}
@@ -42,14 +50,16 @@ class LatticeDesign:
     Parameters
     ----------
     width_mm
-        Hydrogel channel width ``w``; 0 means a uniform hydrogel layer, else ``0 < w < pitch_mm``.
+        Hydrogel channel width ``w``; 0 means a uniform hydrogel layer, else ``MIN_WIDTH_MM <= w < pitch_mm``
+        (``< 2/3 pitch_mm`` for ``triangular``).
     thickness_mm
         Conductive-layer thickness ``t``; ``0 < t <= total_thickness_mm - sealing_mm``.
     pitch_mm
-        Distance ``p`` between channel centre lines (default 12.5 mm puts a channel end under every
-        electrode centre of the default layout).
+        Distance ``p`` between the centre lines of the channels on either side of an island (default 12.5 mm
+        puts a channel end under every electrode centre of the default square layout).
     pattern
-        Lattice pattern; one of :data:`PATTERNS`.
+        Layout family; one of :data:`PATTERNS` (:mod:`latticeopt.layout`). ``"custom"`` takes its hydrogel
+        from ``custom_polygons_mm`` and ignores ``width_mm`` and ``pitch_mm``.
     size_mm
         Side ``L`` of the square sensor.
     total_thickness_mm
@@ -60,6 +70,20 @@ class LatticeDesign:
         Number of rim electrodes, a multiple of 4 (equal count per side).
     electrode_width_mm
         Width of each electrode along its side wall; its height is ``t``.
+    rim
+        ``"none"`` (default: the rim band is silicone; channels end on the electrodes) or ``"channel"`` (a
+        ``w / 2`` hydrogel channel along the lattice's outer boundary).
+    frame_mm
+        Width of a silicone border round the lattice (0: none); leads cross it to the electrodes.
+    electrode_leads
+        Join an electrode that no channel reaches to the nearest channel by a straight lead of width ``w``
+        (parametric families only). False: such a layout is rejected.
+    electrode_positions_mm
+        Electrode centres along each side (mm from the side's first corner, counter-clockwise), the same on
+        every side, increasing; None: evenly spaced. Their number must be ``n_electrodes / 4``.
+    custom_polygons_mm
+        ``pattern = "custom"`` only: hydrogel polygons as ``((shell, *holes), ...)`` rings of ``(x, y)``
+        points (mm), e.g. from :func:`latticeopt.layout.read_geojson`.
     """
 
     width_mm: float = 4.0
@@ -71,10 +95,18 @@ class LatticeDesign:
     sealing_mm: float = 2.0
     n_electrodes: int = 16
     electrode_width_mm: float = 4.0
+    rim: str = "none"
+    frame_mm: float = 0.0
+    electrode_leads: bool = True
+    electrode_positions_mm: tuple | None = None
+    custom_polygons_mm: tuple = ()
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
         set_(self, "pattern", v.choice("pattern", self.pattern, PATTERNS))
+        set_(self, "rim", v.choice("rim", self.rim, RIMS))
+        if self.electrode_leads not in (True, False):
+            raise ParameterError("electrode_leads", "true or false", self.electrode_leads)
         set_(self, "size_mm", v.real("size_mm", self.size_mm, lo=0, lo_open=True))
         set_(self, "total_thickness_mm",
              v.real("total_thickness_mm", self.total_thickness_mm, lo=0, lo_open=True))
@@ -86,12 +118,15 @@ class LatticeDesign:
             "thickness_mm", self.thickness_mm, lo=0, lo_open=True, hi=room,
             expected=f"0 < thickness_mm <= total_thickness_mm - sealing_mm = {room:g} mm "
                      "(the substrate may not be negative)"))
-        w = v.real("width_mm", self.width_mm,
-                   expected=f"0 (no lattice) or 0 < width_mm < pitch_mm = {self.pitch_mm:g} mm")
-        if w < 0 or w >= self.pitch_mm:
-            raise ParameterError(
-                "width_mm", f"0 (no lattice) or 0 < width_mm < pitch_mm = {self.pitch_mm:g} mm", self.width_mm)
+        w_max = _layout.MAX_WIDTH_FRACTION.get(self.pattern, np.inf) * self.pitch_mm
+        bound = "pitch_mm" if w_max == self.pitch_mm else f"2/3 pitch_mm ({self.pattern} islands vanish there)"
+        expected = f"0 (no lattice) or {MIN_WIDTH_MM:g} <= width_mm < {bound} = {w_max:g} mm"
+        w = v.real("width_mm", self.width_mm, expected=expected)
+        if (w != 0 and w < MIN_WIDTH_MM) or w < 0 or w >= w_max:
+            raise ParameterError("width_mm", expected, self.width_mm)
         set_(self, "width_mm", w)
+        set_(self, "frame_mm", v.real("frame_mm", self.frame_mm, lo=0, hi=self.size_mm / 4,
+                                      expected=f"0 <= frame_mm <= size_mm / 4 = {self.size_mm / 4:g} mm"))
         n = v.integer("n_electrodes", self.n_electrodes, lo=4,
                       expected="a positive multiple of 4 (equal count per side)")
         if n % 4:
@@ -101,7 +136,34 @@ class LatticeDesign:
         set_(self, "electrode_width_mm", v.real(
             "electrode_width_mm", self.electrode_width_mm, lo=0, lo_open=True, hi=spacing,
             expected=f"0 < electrode_width_mm <= side / electrodes per side = {spacing:g} mm"))
+        set_(self, "electrode_positions_mm", self._checked_positions())
+        if self.pattern == "custom":
+            if not self.custom_polygons_mm:
+                raise ParameterError("custom_polygons_mm", "hydrogel polygons for pattern = 'custom' "
+                                     "(--layout FILE.geojson)", self.custom_polygons_mm)
+            gel = _layout.validate_polygons(self.custom_polygons_mm, self.size_mm)
+            set_(self, "custom_polygons_mm", _layout.polygons_from_geometry(gel))
+        elif self.custom_polygons_mm:
+            raise ParameterError("custom_polygons_mm", "no polygons unless pattern = 'custom'",
+                                 f"{len(self.custom_polygons_mm)} polygon(s) with pattern = {self.pattern!r}")
+        _layout.check_electrodes(self.footprint(), self.electrodes(), self.size_mm,
+                                 name="custom_polygons_mm" if self.pattern == "custom" else "layout")
 
+    def _checked_positions(self) -> tuple | None:
+        pos = self.electrode_positions_mm
+        if pos is None:
+            return None
+        per, L, ew = self.n_electrodes // 4, self.size_mm, self.electrode_width_mm
+        expected = (f"{per} increasing electrode centres per side (n_electrodes / 4), each in "
+                    f"[{ew / 2:g}, {L - ew / 2:g}] mm, at least electrode_width_mm = {ew:g} mm apart")
+        try:
+            arr = np.asarray(pos, dtype=float)
+        except (TypeError, ValueError):
+            raise ParameterError("electrode_positions_mm", expected, pos) from None
+        if (arr.shape != (per,) or not np.all(np.isfinite(arr)) or np.any(arr < ew / 2 - 1e-12)
+                or np.any(arr > L - ew / 2 + 1e-12) or np.any(np.diff(arr) < ew - 1e-12)):
+            raise ParameterError("electrode_positions_mm", expected, pos)
+        return tuple(float(x) for x in arr)
     # -- derived geometry -------------------------------------------------------------------------
     @property
     def substrate_mm(self) -> float:
@@ -116,26 +178,31 @@ class LatticeDesign:
 
     @property
     def has_lattice(self) -> bool:
-        return self.width_mm > 0
+        """False for the uniform layer (``w = 0`` of a parametric family)."""
+        return self.pattern == "custom" or self.width_mm > 0
+
+    @property
+    def electrode_centres_mm(self) -> np.ndarray:
+        """Electrode centres along each side (mm from the side's first corner), shape ``(n_electrodes / 4,)``."""
+        if self.electrode_positions_mm is not None:
+            return np.asarray(self.electrode_positions_mm, dtype=float)
+        per = self.n_electrodes // 4
+        return (np.arange(per) + 0.5) * self.size_mm / per
 
     def line_positions_mm(self) -> np.ndarray:
-        """Channel centre-line coordinates (same along x and y), shape ``(n_lines,)``."""
-        k = np.arange(int(np.floor(self.size_mm / self.pitch_mm + 1e-9)) + 1)
-        lines = k * self.pitch_mm
-        if self.size_mm - lines[-1] > 1e-9 * self.size_mm:
-            lines = np.append(lines, self.size_mm)
-        return lines
+        """``square`` pattern: channel centre-line coordinates (same along x and y), shape ``(n_lines,)``."""
+        return _layout.square_lines_mm(self.size_mm, self.pitch_mm, self.rim)
 
     def channel_intervals_mm(self) -> np.ndarray:
-        """Merged hydrogel intervals along one axis inside ``[0, L]``, shape ``(k, 2)``.
+        """``square`` pattern without frame: merged hydrogel intervals along one axis, shape ``(k, 2)``.
 
         Empty for ``w = 0`` (the whole layer is hydrogel then; see :attr:`has_lattice`).
         """
-        if not self.has_lattice:
+        if not self.has_lattice or self.pattern != "square":
             return np.zeros((0, 2))
         h = self.width_mm / 2
-        raw = np.clip(np.stack([self.line_positions_mm() - h, self.line_positions_mm() + h], 1),
-                      0.0, self.size_mm)
+        lines = self.line_positions_mm()
+        raw = np.clip(np.stack([lines - h, lines + h], 1), 0.0, self.size_mm)
         merged: list[list[float]] = []
         for a, b in raw:
             if merged and a <= merged[-1][1]:
@@ -144,15 +211,42 @@ class LatticeDesign:
                 merged.append([a, b])
         return np.asarray(merged)
 
+    @functools.cached_property
+    def _footprint(self):
+        L = self.size_mm
+        if self.pattern == "custom":
+            return _layout.validate_polygons(self.custom_polygons_mm, L)
+        gel = _layout.parametric_footprint(self.pattern, L, self.width_mm, self.pitch_mm, self.rim, self.frame_mm)
+        if self.electrode_leads and self.has_lattice:
+            gel = _layout.add_leads(gel, self.electrodes(), self.width_mm, L)
+        return gel
+
+    def footprint(self):
+        """The hydrogel polygons of the conductive layer (a shapely ``MultiPolygon``, mm)."""
+        return self._footprint
+
+    @property
+    def is_axis_aligned(self) -> bool:
+        """True when every edge of the layout is parallel to x or y (the grid mesher's condition)."""
+        import shapely
+
+        geom = self.footprint()
+        if geom.is_empty:
+            return True
+        for ring in shapely.get_rings(geom):
+            d = np.diff(np.asarray(ring.coords), axis=0)
+            if not np.all((np.abs(d[:, 0]) < 1e-9) | (np.abs(d[:, 1]) < 1e-9)):
+                return False
+        return True
+
     def hydrogel_area_fraction(self) -> float:
         """Fraction of the conductive layer's footprint that is hydrogel."""
         if not self.has_lattice:
             return 1.0
-        f = float(np.sum(np.diff(self.channel_intervals_mm(), axis=1))) / self.size_mm
-        return f * (2.0 - f)  # = 1 - (1 - f)^2 without the cancellation for narrow channels
+        return float(self.footprint().area) / self.size_mm ** 2
 
     def region_volumes_mm3(self) -> dict[str, float]:
-        """Analytic volume of every region (mm^3)."""
+        """Analytic volume of every region (mm^3): polygon area x layer thickness for the hydrogel."""
         area = self.size_mm ** 2
         gel = self.hydrogel_area_fraction() * area * self.thickness_mm
         return {"substrate": area * self.substrate_mm,
@@ -165,6 +259,8 @@ class LatticeDesign:
 
         Points exactly on an interface go to the region below / the hydrogel; use centroids.
         """
+        import shapely
+
         p = np.asarray(points_mm, dtype=float)
         z0, z1 = self.layer_z_mm
         out = np.full(len(p), REGION_IDS["islands"], dtype=np.int8)
@@ -174,13 +270,11 @@ class LatticeDesign:
         if not self.has_lattice:
             out[in_layer] = REGION_IDS["hydrogel"]
             return out
-        iv = self.channel_intervals_mm()
-
-        def on_channel(c: np.ndarray) -> np.ndarray:
-            return np.any((c[:, None] >= iv[:, 0]) & (c[:, None] <= iv[:, 1]), axis=1)
-
-        gel = in_layer & (on_channel(p[:, 0]) | on_channel(p[:, 1]))
-        out[gel] = REGION_IDS["hydrogel"]
+        geom = self.footprint()
+        shapely.prepare(geom)
+        idx = np.nonzero(in_layer)[0]
+        gel = shapely.intersects_xy(geom, p[idx, 0], p[idx, 1])
+        out[idx[gel]] = REGION_IDS["hydrogel"]
         return out
 
     def electrodes(self) -> np.ndarray:
@@ -189,8 +283,7 @@ class LatticeDesign:
         Columns: centre ``x, y, z`` (mm), outward normal ``nx, ny`` (the wall's), tangent axis
         (0 = along x, 1 = along y), width (mm), height (mm).
         """
-        L, per = self.size_mm, self.n_electrodes // 4
-        c = (np.arange(per) + 0.5) * L / per
+        L, c = self.size_mm, self.electrode_centres_mm
         z0, z1 = self.layer_z_mm
         zc, ht, ew = (z0 + z1) / 2, self.thickness_mm, self.electrode_width_mm
         rows = []
@@ -198,15 +291,16 @@ class LatticeDesign:
             rows.append([s, 0.0, zc, 0, -1, 0, ew, ht])
         for s in c:  # side x = L, y increasing
             rows.append([L, s, zc, 1, 0, 1, ew, ht])
-        for s in c[::-1]:  # side y = L, x decreasing
-            rows.append([s, L, zc, 0, 1, 0, ew, ht])
-        for s in c[::-1]:  # side x = 0, y decreasing
-            rows.append([0.0, s, zc, -1, 0, 1, ew, ht])
+        for s in c:  # side y = L, x decreasing
+            rows.append([L - s, L, zc, 0, 1, 0, ew, ht])
+        for s in c:  # side x = 0, y decreasing
+            rows.append([0.0, L - s, zc, -1, 0, 1, ew, ht])
         return np.asarray(rows, dtype=float)
 
     # -- identity ---------------------------------------------------------------------------------
     def as_dict(self) -> dict:
-        return dataclasses.asdict(self)
+        """The fields as JSON-ready values (tuples become lists)."""
+        return json.loads(json.dumps(dataclasses.asdict(self)))
 
     def content_hash(self) -> str:
         """SHA-256 of the canonical JSON of the fields (stable across machines and runs)."""
@@ -217,8 +311,14 @@ class LatticeDesign:
         return dataclasses.replace(self, **changes)
 
     def describe(self) -> str:
-        kind = "uniform layer" if not self.has_lattice else f"{self.pattern} lattice w = {self.width_mm:g} mm, " \
-                                                            f"p = {self.pitch_mm:g} mm"
+        if not self.has_lattice:
+            kind = "uniform layer"
+        elif self.pattern == "custom":
+            kind = f"custom layout ({len(self.custom_polygons_mm)} polygons, {self.hydrogel_area_fraction():.0%} gel)"
+        else:
+            kind = f"{self.pattern} lattice w = {self.width_mm:g} mm, p = {self.pitch_mm:g} mm, rim {self.rim}"
+            if self.frame_mm:
+                kind += f", frame {self.frame_mm:g} mm"
         return f"{kind}, t = {self.thickness_mm:g} mm, {self.size_mm:g} x {self.size_mm:g} x " \
                f"{self.total_thickness_mm:g} mm, {self.n_electrodes} electrodes"
 

@@ -48,17 +48,16 @@ class RegionSolids:
 
 
 def _hydrogel_solid(design: LatticeDesign):
+    """The design's hydrogel footprint extruded through the conductive layer."""
     import manifold3d as m3
+    import shapely
 
-    L = design.size_mm
     z0, z1 = design.layer_z_mm
-    if not design.has_lattice:
-        return _box((0, 0, z0), (L, L, z1))
-    bars = []
-    for a, b in design.channel_intervals_mm():
-        bars.append(_box((a, 0, z0), (b, L, z1)))
-        bars.append(_box((0, a, z0), (L, b, z1)))
-    return m3.Manifold.batch_boolean(bars, m3.OpType.Add)
+    # Shells counter-clockwise, holes clockwise: what manifold3d's Positive fill rule reads as solid and void.
+    gel = shapely.orient_polygons(design.footprint(), exterior_cw=False)
+    rings = [np.ascontiguousarray(np.asarray(r.coords)[:-1, :2], dtype=np.float64) for r in shapely.get_rings(gel)]
+    section = m3.CrossSection(rings, m3.FillRule.Positive)
+    return m3.Manifold.extrude(section, z1 - z0).translate([0.0, 0.0, z0])
 
 
 def build_solids(design: LatticeDesign) -> RegionSolids:

@@ -67,7 +67,7 @@ def test_region_volumes_are_the_analytic_ones(design_and_solids):
 @pytest.mark.parametrize("w, t", [(2.0, 1.0), (4.0, 3.0), (6.0, 5.0), (10.0, 2.0)])
 def test_hydrogel_volume_formula_of_the_issue(w, t):
     # Square pattern with p dividing L: hydrogel = t L^2 (1 - (1 - w/p)^2).
-    solids = build_solids(LatticeDesign(width_mm=w, thickness_mm=t))
+    solids = build_solids(LatticeDesign(width_mm=w, thickness_mm=t, rim="channel"))
     assert solids.volumes_mm3["hydrogel"] == pytest.approx(t * 100 ** 2 * (1 - (1 - w / 12.5) ** 2), rel=1e-9)
 
 
@@ -83,7 +83,7 @@ def test_zero_width_gives_a_uniform_hydrogel_layer():
 
 def test_lattice_topology_one_handle_per_island():
     # p = 12.5 on 100 mm: 8 x 8 islands, each a hole through the hydrogel layer.
-    solids = build_solids(LatticeDesign())
+    solids = build_solids(LatticeDesign(rim="channel"))
     assert solids.genus["hydrogel"] == 64
     assert solids.genus["sealing"] == 0 and solids.genus["substrate"] == 0
     # The islands solid is 64 separate boxes: Euler characteristic V - E + F = 2 per sphere-like component

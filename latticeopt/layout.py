@@ -1,0 +1,320 @@
+"""The conductive layer's 2D layout: hydrogel polygons inside the ``L x L`` square (mm), built with shapely.
+
+The layer is this footprint extruded through the layer thickness ``t``; everything else in the layer is
+silicone. Parametric families, all with channel width ``w`` and pitch ``p`` = the distance between the
+centre lines of the two channels on either side of one island:
+
+``square``
+    Channels on the lines ``x = k p`` and ``y = k p`` (``k = 0, 1, ...``; plus a line at ``L`` if ``p`` does
+    not divide it). With the default ``p = 12.5`` mm a channel end meets every electrode centre.
+``diagonal``
+    The square lattice turned by 45 degrees about the sensor centre.
+``hexagonal``
+    Honeycomb channels: the edges of regular hexagonal cells (flat top and bottom) whose centres are ``p``
+    apart, one cell centred on the sensor centre.
+``triangular``
+    Three families of parallel lines (0, 60 and 120 degrees) ``p`` apart through the sensor centre; the
+    islands are equilateral triangles (so ``w < 2 p / 3``).
+``custom``
+    Hydrogel polygons given by the user (GeoJSON, :func:`read_geojson`).
+
+The rim: ``rim = "channel"`` lays a channel of width ``w / 2`` along the inside of the lattice's outer
+boundary (for ``square`` with ``frame_mm = 0`` this is the half-width channel that the lines ``x, y = 0, L``
+leave inside the sensor); ``rim = "none"`` leaves the rim band silicone, apart from channels that end on it.
+``frame_mm`` clips the lattice to the square inset by that width: a silicone border. Electrodes are joined
+to the lattice where they would touch no hydrogel (a frame, or a pattern whose channels miss an electrode)
+by straight *leads*: channels of width ``w`` along the wall normal from the electrode centre to the nearest
+hydrogel (``electrode_leads``; custom layouts get none).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from .errors import ParameterError
+
+PARAMETRIC = ("square", "hexagonal", "triangular", "diagonal")
+PATTERNS = (*PARAMETRIC, "custom")
+RIMS = ("none", "channel")
+#: Channels wider than this fraction of the pitch leave no island (triangular: its islands vanish at 2/3).
+MAX_WIDTH_FRACTION = {"square": 1.0, "diagonal": 1.0, "hexagonal": 1.0, "triangular": 2.0 / 3.0}
+
+
+def _box(x0: float, y0: float, x1: float, y1: float):
+    import shapely
+
+    return shapely.box(x0, y0, x1, y1)
+
+
+def _strips(normal_deg: float, offsets: np.ndarray, centre: np.ndarray, half_w: float, reach: float) -> list:
+    """Rectangles of half-width ``half_w`` around the lines ``n . (x - centre) = offset`` (long enough to
+    cross the sensor); ``n`` points at ``normal_deg``."""
+    import shapely
+
+    n = np.array([math.cos(math.radians(normal_deg)), math.sin(math.radians(normal_deg))])
+    tangent = np.array([-n[1], n[0]])
+    out = []
+    for off in offsets:
+        c = centre + off * n
+        corners = [c + s * reach * tangent + r * half_w * n for s, r in ((-1, -1), (1, -1), (1, 1), (-1, 1))]
+        out.append(shapely.Polygon(corners))
+    return out
+
+
+def _line_offsets(pitch: float, reach: float) -> np.ndarray:
+    k = int(math.ceil(reach / pitch)) + 1
+    return np.arange(-k, k + 1) * pitch
+
+
+def square_lines_mm(size_mm: float, pitch_mm: float, rim: str) -> np.ndarray:
+    """Channel centre lines of the ``square`` pattern (same along x and y), shape ``(n,)``.
+
+    ``rim = "none"`` leaves out the lines on the sensor's sides (``0`` and ``L``).
+    """
+    k = np.arange(int(np.floor(size_mm / pitch_mm + 1e-9)) + 1)
+    lines = k * pitch_mm
+    if size_mm - lines[-1] > 1e-9 * size_mm:
+        lines = np.append(lines, size_mm)
+    if rim == "none":
+        lines = lines[(lines > 1e-9 * size_mm) & (lines < size_mm * (1 - 1e-9))]
+    return lines
+
+
+def _lattice(pattern: str, size_mm: float, width_mm: float, pitch_mm: float, rim: str):
+    """The channel network of a parametric pattern over the whole sensor (before frame and rim band)."""
+    import shapely
+
+    L, h = size_mm, width_mm / 2
+    centre = np.array([L / 2, L / 2])
+    reach = L  # half-length of every strip: crosses the sensor from anywhere inside it
+    if pattern == "square":
+        lines = square_lines_mm(L, pitch_mm, "channel")
+        strips = [_box(a - h, -1, a + h, L + 1) for a in lines] + [_box(-1, a - h, L + 1, a + h) for a in lines]
+    elif pattern == "diagonal":
+        offs = _line_offsets(pitch_mm, reach)
+        strips = _strips(45.0, offs, centre, h, reach) + _strips(135.0, offs, centre, h, reach)
+    elif pattern == "triangular":
+        offs = _line_offsets(pitch_mm, reach)
+        strips = [s for ang in (90.0, 210.0, 330.0) for s in _strips(ang, offs, centre, h, reach)]
+    elif pattern == "hexagonal":
+        strips = _honeycomb(centre, pitch_mm, h, reach)
+    else:
+        raise ValueError(f"pattern: expected one of {PARAMETRIC}, got {pattern!r}")
+    box = _box(0, 0, L, L)
+    pieces = [s.intersection(box) for s in strips]
+    pieces = [s for s in pieces if s.area > 1e-12 * L * L]
+    if rim == "none":
+        # A channel lying wholly in the band along a side would be (part of) a rim channel: leave it out.
+        inner = _box(h * (1 + 1e-9), h * (1 + 1e-9), L - h * (1 + 1e-9), L - h * (1 + 1e-9))
+        pieces = [s for s in pieces if s.intersection(inner).area > 1e-9 * s.area]
+    return shapely.union_all(pieces)
+
+
+def _honeycomb(centre: np.ndarray, pitch: float, half_w: float, reach: float) -> list:
+    """Rectangles (flat ends) around every edge of the honeycomb whose cells are ``pitch`` apart.
+
+    Cells have vertices at 0, 60, ..., 300 degrees (flat top and bottom); flat-capped rectangles meeting at a
+    120-degree vertex cover it exactly (every direction lies within 60 degrees of an arm), so their union is
+    the mitred channel network.
+    """
+    import shapely
+
+    R = pitch / math.sqrt(3.0)  # circumradius of a cell with flat-to-flat distance ``pitch``
+    a1, a2 = np.array([0.0, pitch]), np.array([pitch * math.sqrt(3) / 2, pitch / 2])
+    n = int(math.ceil(2 * reach / pitch)) + 2
+    ij = np.array([(i, j) for i in range(-n, n + 1) for j in range(-n, n + 1)], dtype=float)
+    cells = centre + ij[:, :1] * a1 + ij[:, 1:] * a2
+    cells = cells[np.all(np.abs(cells - centre) <= reach / 2 + 2 * pitch, axis=1)]
+    ang = np.radians(60.0 * np.arange(6))
+    verts = cells[:, None, :] + R * np.stack([np.cos(ang), np.sin(ang)], axis=1)[None]
+    segs = np.stack([verts, np.roll(verts, -1, axis=1)], axis=2).reshape(-1, 2, 2)
+    _, first = np.unique(np.round((segs[:, 0] + segs[:, 1]) / 2, 6), axis=0, return_index=True)
+    out = []
+    for a, b in segs[first]:
+        t = (b - a) / np.linalg.norm(b - a)
+        nrm = np.array([-t[1], t[0]]) * half_w
+        out.append(shapely.Polygon([a - nrm, b - nrm, b + nrm, a + nrm]))
+    return out
+
+
+def parametric_footprint(pattern: str, size_mm: float, width_mm: float, pitch_mm: float, rim: str,
+                         frame_mm: float):
+    """Hydrogel footprint of a parametric lattice (no leads), a shapely (Multi)Polygon inside the sensor."""
+    L, f = size_mm, frame_mm
+    inner = _box(f, f, L - f, L - f)
+    if width_mm == 0:
+        return _box(0, 0, L, L)
+    net = _lattice(pattern, L, width_mm, pitch_mm, rim).intersection(inner)
+    if rim == "channel":
+        band = inner.difference(_box(f + width_mm / 2, f + width_mm / 2, L - f - width_mm / 2, L - f - width_mm / 2))
+        net = net.union(band)
+    return _clean(net)
+
+
+def _clean(geom):
+    import shapely
+
+    geom = shapely.make_valid(geom)
+    polys = [g for g in getattr(geom, "geoms", [geom]) if g.geom_type == "Polygon" and g.area > 0]
+    if not polys:
+        return shapely.MultiPolygon()
+    return shapely.union_all(polys).normalize()
+
+
+def electrode_segments(electrodes: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Each electrode's footprint on the sensor outline as two 2D end points (mm)."""
+    out = []
+    for cx, cy, _cz, _nx, _ny, axis, width, _h in electrodes:
+        t = np.array([1.0, 0.0]) if int(axis) == 0 else np.array([0.0, 1.0])
+        c = np.array([cx, cy])
+        out.append((c - t * width / 2, c + t * width / 2))
+    return out
+
+
+def electrode_contact_mm(footprint, electrodes: np.ndarray) -> np.ndarray:
+    """Length (mm) of each electrode's segment that lies on the hydrogel footprint, shape ``(n,)``."""
+    import shapely
+
+    return np.array([footprint.intersection(shapely.LineString([a, b])).length
+                     for a, b in electrode_segments(electrodes)])
+
+
+def add_leads(footprint, electrodes: np.ndarray, width_mm: float, size_mm: float):
+    """Join every electrode that touches no hydrogel to the nearest hydrogel by a straight lead channel."""
+    import shapely
+
+    contact = electrode_contact_mm(footprint, electrodes)
+    leads = []
+    for k, (cx, cy, _cz, nx, ny, _axis, _w, _h) in enumerate(electrodes):
+        if contact[k] > 1e-12 * size_mm or footprint.is_empty:
+            continue
+        start = np.array([cx, cy])
+        ray = shapely.LineString([start, start - size_mm * np.array([nx, ny])])
+        hit = ray.intersection(footprint)
+        if hit.is_empty:
+            continue
+        depth = shapely.Point(start).distance(hit) + width_mm / 2
+        t = np.array([-ny, nx]) * width_mm / 2
+        end = start - depth * np.array([nx, ny])
+        leads.append(shapely.Polygon([start - t, start + t, end + t, end - t]))
+    if not leads:
+        return footprint
+    return _clean(shapely.union_all([footprint, *leads]).intersection(_box(0, 0, size_mm, size_mm)))
+
+
+def check_electrodes(footprint, electrodes: np.ndarray, size_mm: float, name: str = "layout") -> None:
+    """Raise :class:`ParameterError` naming the first electrode (1-based) that touches no hydrogel."""
+    contact = electrode_contact_mm(footprint, electrodes)
+    bad = np.nonzero(contact <= 1e-12 * size_mm)[0]
+    if len(bad):
+        k = int(bad[0])
+        cx, cy = electrodes[k, :2]
+        raise ParameterError(name, f"a hydrogel layout that every electrode touches (electrode {k + 1} at "
+                             f"x = {cx:g}, y = {cy:g} mm touches none; {len(bad)} electrode(s) in all)",
+                             "a layout without hydrogel there")
+
+
+# -- custom layouts -----------------------------------------------------------------------------------------
+def polygons_from_geometry(geom) -> tuple:
+    """A shapely (Multi)Polygon as nested tuples ``((shell, *holes), ...)`` of ``(x, y)`` pairs (hashable)."""
+    polys = getattr(geom, "geoms", [geom])
+    out = []
+    for p in polys:
+        rings = [p.exterior, *p.interiors]
+        out.append(tuple(tuple((float(x), float(y)) for x, y in np.asarray(r.coords)[:, :2]) for r in rings))
+    return tuple(out)
+
+
+def geometry_from_polygons(polygons) -> object:
+    """The inverse of :func:`polygons_from_geometry` (no validation)."""
+    import shapely
+
+    return shapely.MultiPolygon([shapely.Polygon(rings[0], rings[1:]) for rings in polygons])
+
+
+def validate_polygons(polygons, size_mm: float, name: str = "custom_polygons_mm"):
+    """Check custom hydrogel polygons and return their union (shapely).
+
+    Rings must be closed (first point = last point), each polygon valid (no self-intersection), and all of
+    them inside the ``L x L`` sensor (within 1e-9 L).
+    """
+    import shapely
+
+    if not isinstance(polygons, (tuple, list)) or not polygons:
+        raise ParameterError(name, "one or more polygons ((shell, *holes) rings of (x, y) points in mm)",
+                             type(polygons).__name__)
+    parts = []
+    for i, rings in enumerate(polygons):
+        where = f"{name}[{i}]"
+        try:
+            rings = [np.asarray(r, dtype=float) for r in rings]
+        except (TypeError, ValueError):
+            raise ParameterError(where, "rings of numeric (x, y) points", "non-numeric coordinates") from None
+        for r in rings:
+            if r.ndim != 2 or r.shape[1] < 2 or len(r) < 4 or not np.all(np.isfinite(r)):
+                raise ParameterError(where, "closed rings of at least 4 finite (x, y) points", f"shape {r.shape}")
+            if not np.allclose(r[0, :2], r[-1, :2], atol=1e-9 * size_mm, rtol=0):
+                raise ParameterError(where, "closed rings (first point equal to the last)",
+                                     f"first {tuple(r[0, :2])}, last {tuple(r[-1, :2])}")
+        poly = shapely.Polygon(rings[0][:, :2], [r[:, :2] for r in rings[1:]])
+        if not poly.is_valid:
+            raise ParameterError(where, "a valid polygon", shapely.is_valid_reason(poly))
+        if poly.area <= 0:
+            raise ParameterError(where, "a polygon of positive area", poly.area)
+        outside = poly.difference(_box(0, 0, size_mm, size_mm)).area
+        if outside > 1e-9 * size_mm ** 2:
+            x0, y0, x1, y1 = poly.bounds
+            raise ParameterError(where, f"a polygon inside the sensor [0, {size_mm:g}] x [0, {size_mm:g}] mm",
+                                 f"bounds ({x0:g}, {y0:g}, {x1:g}, {y1:g}), {outside:.3g} mm^2 outside")
+        parts.append(poly.intersection(_box(0, 0, size_mm, size_mm)))
+    return _clean(shapely.union_all(parts))
+
+
+def read_geojson(path: str | Path, name: str = "--layout") -> tuple:
+    """Hydrogel polygons (mm) from a GeoJSON file: a FeatureCollection, Feature, Polygon or MultiPolygon.
+
+    Returns the nested tuples of :func:`polygons_from_geometry`, in the file's coordinates (mm, the sensor
+    being ``[0, L] x [0, L]``). Validation against a sensor happens in :class:`~latticeopt.LatticeDesign`.
+    """
+    import shapely.geometry
+
+    p = Path(path)
+    if p.suffix.lower() not in (".geojson", ".json"):
+        raise ParameterError(name, "a GeoJSON file (.geojson or .json)", str(p))
+    try:
+        doc = json.loads(p.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise ParameterError(name, "a readable GeoJSON file", f"{p} ({exc.strerror})") from None
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ParameterError(name, "a GeoJSON file (UTF-8 JSON)", f"{p} ({exc})") from None
+    if not isinstance(doc, dict):
+        raise ParameterError(name, "a GeoJSON object", type(doc).__name__)
+    kind = doc.get("type")
+    geoms = {"FeatureCollection": lambda d: [f.get("geometry") for f in d.get("features", [])],
+             "Feature": lambda d: [d.get("geometry")]}.get(kind, lambda d: [d])(doc)
+    polys = []
+    for g in geoms:
+        if not isinstance(g, dict) or g.get("type") not in ("Polygon", "MultiPolygon"):
+            got = g.get("type") if isinstance(g, dict) else g
+            raise ParameterError(name, "Polygon or MultiPolygon geometries", f"{got} in {p}")
+        try:
+            shp = shapely.geometry.shape(g)
+        except (ValueError, TypeError, IndexError, AttributeError) as exc:
+            raise ParameterError(name, "well-formed Polygon coordinates", f"{p} ({exc})") from None
+        polys.extend(polygons_from_geometry(shp))
+    if not polys:
+        raise ParameterError(name, "at least one hydrogel polygon", f"none in {p}")
+    return tuple(polys)
+
+
+def write_geojson(footprint, path: str | Path) -> None:
+    """Write a footprint as a GeoJSON FeatureCollection (mm), readable by :func:`read_geojson`."""
+    import shapely.geometry
+
+    feature = {"type": "Feature", "properties": {"units": "mm", "material": "hydrogel"},
+               "geometry": shapely.geometry.mapping(footprint)}
+    Path(path).write_text(json.dumps({"type": "FeatureCollection", "features": [feature]}), encoding="utf-8")
