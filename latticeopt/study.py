@@ -33,7 +33,7 @@ from pathlib import Path
 from . import _validate as v
 from .design import DESIGN_FIELDS, LatticeDesign
 from .errors import ParameterError
-from .mesh import MESHER_REVISION, MeshSettings
+from .mesh import MeshSettings
 from .phantoms import MAX_TOUCHES, Comparison, Phantom, PressSeries, RandomPhantoms
 from .touches import validate_touches
 
@@ -41,8 +41,6 @@ __all__ = ["DEFAULT_MODEL", "PHYSICS_KEYS", "STUDY_KINDS", "EvalSettings", "Stud
            "parse_override", "study_from_dict"]
 
 STUDY_KINDS = ("grid", "press")
-#: Bump when the coupled model's results change for the same inputs (stored rows then stop matching).
-MODEL_REVISION = 3  # 2: conforming flat-punch rim, single-precision mechanics tangent; 3: mechanics_rtol 1e-4
 #: The evaluation function a study uses unless it names another (``model = "module:function"``).
 DEFAULT_MODEL = "latticeopt.coupled:evaluate_phantom"
 
@@ -126,13 +124,36 @@ class EvalSettings:
         return dict(self.physics_items)
 
     def as_dict(self) -> dict:
-        """The identity-relevant content (everything but :attr:`cache_dir`).
+        """The identity-relevant content (everything but :attr:`cache_dir`), every default resolved.
 
-        Includes the mesher's and the model's revision numbers, so rows computed by an older mesher or
-        physics are never reused as current.
+        Returns
+        -------
+        dict
+            ``mesh``: every :class:`MeshSettings` field, defaults included. ``physics``: for the default model,
+            the resolved :class:`latticeopt.coupled.PhysicsSettings` (all fields) and the
+            :class:`latticeopt.mechanics.IndentSettings` it hands the solver (``indent``, materials nested);
+            for any other model, the ``[physics]`` table as given (its defaults are the model's own business).
+            ``model``: the function's name. ``version``: latticeopt's package version.
+
+        Notes
+        -----
+        Keying on resolved values rather than on the table as written means a changed default (a solver
+        tolerance, a mesher option, a material constant) changes the key, so rows computed with the old value
+        are never reused as current; the package version covers changes of the code itself. No hand-bumped
+        revision number is involved.
         """
-        return {"mesh": self.mesh.as_dict(), "physics": self.physics, "model": self.model,
-                "revision": {"mesher": MESHER_REVISION[self.mesh.mesher], "model": MODEL_REVISION}}
+        from . import __version__  # read at call time: the installed package's version
+
+        physics: dict = self.physics
+        if self.model == DEFAULT_MODEL:
+            # imported here, not at module level: the coupled model pulls in the solvers, and only the default
+            # model's settings are known to be PhysicsSettings
+            from .coupled import PhysicsSettings
+
+            resolved = PhysicsSettings.from_dict(physics)
+            physics = {**resolved.as_dict(), "indent": resolved.indent_settings().as_dict()}
+        return {"mesh": dataclasses.asdict(self.mesh), "physics": physics, "model": self.model,
+                "version": __version__}
 
     @property
     def key(self) -> str:

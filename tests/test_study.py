@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import inspect
 from pathlib import Path
 
 import pytest
@@ -172,6 +173,53 @@ def test_settings_key_tracks_what_changes_results():
     assert a.key == b.key and a.physics == {"indenter": "flat", "sigma_S_per_m": 2.0}
     with pytest.raises(dataclasses.FrozenInstanceError):
         a.model = "x:y"
+
+
+def _set_default(monkeypatch, cls, name: str, value) -> None:
+    """Change the default of dataclass field ``name`` for this test (as an edit of the class would)."""
+    init = cls.__init__
+    names = [p.name for p in inspect.signature(init).parameters.values() if p.default is not p.empty]
+    defaults = list(init.__defaults__)
+    defaults[names.index(name)] = value
+    monkeypatch.setattr(init, "__defaults__", tuple(defaults))
+
+
+@pytest.mark.parametrize("field_name, value", [("step_rtol", 1e-2), ("method", "newton"), ("max_step_mm", 0.5),
+                                               ("precision", "double")])
+def test_settings_key_changes_with_a_solver_default(monkeypatch, field_name, value):
+    from latticeopt.mechanics import IndentSettings
+
+    before = EvalSettings(physics_items=(("sigma_S_per_m", 2.0),)).key
+    _set_default(monkeypatch, IndentSettings, field_name, value)
+    assert getattr(IndentSettings(), field_name) == value
+    after = EvalSettings(physics_items=(("sigma_S_per_m", 2.0),))
+    assert after.key != before
+    assert after.as_dict()["physics"]["indent"][field_name] == value
+
+
+def test_settings_key_changes_with_a_mesh_default_and_the_package_version(monkeypatch):
+    import latticeopt
+
+    base = EvalSettings()
+    key = base.key
+    assert set(base.as_dict()["mesh"]) == {f.name for f in dataclasses.fields(MeshSettings)}
+    assert base.as_dict()["version"] == latticeopt.__version__
+    monkeypatch.setattr(latticeopt, "__version__", latticeopt.__version__ + ".post1")
+    assert EvalSettings().key != key
+    monkeypatch.undo()
+    assert EvalSettings().key == key
+    _set_default(monkeypatch, MeshSettings, "channel_cells", 3)
+    assert EvalSettings().key != key
+
+
+def test_settings_key_of_a_custom_model_uses_its_table_as_given(monkeypatch):
+    from latticeopt.mechanics import IndentSettings
+
+    custom = EvalSettings(model="m:f", physics_items=(("indenter", "flat"),))
+    assert custom.as_dict()["physics"] == {"indenter": "flat"}  # another model's defaults are its own
+    key = custom.key
+    _set_default(monkeypatch, IndentSettings, "step_rtol", 1e-2)
+    assert EvalSettings(model="m:f", physics_items=(("indenter", "flat"),)).key == key
 
 
 def test_grid_may_vary_any_design_field(tmp_path):
