@@ -324,3 +324,57 @@ class LatticeDesign:
 
 
 DESIGN_FIELDS = tuple(f.name for f in dataclasses.fields(LatticeDesign))
+
+#: Keys a study table (or the CLI) may give besides the fields: ``layout`` (a GeoJSON file of hydrogel
+#: polygons, which makes the pattern ``custom``) and ``hydrogel_fraction`` (the channel width is solved so that
+#: this fraction of the layer is hydrogel: layouts compared at equal gel). ``custom_polygons_mm`` comes from
+#: ``layout`` only.
+TABLE_KEYS = tuple(f for f in DESIGN_FIELDS if f != "custom_polygons_mm") + ("layout", "hydrogel_fraction")
+
+
+def width_for_fraction(design: LatticeDesign, fraction: float) -> LatticeDesign:
+    """``design`` with the channel width that makes ``fraction`` of the conductive layer hydrogel.
+
+    The fraction grows with ``w`` for every parametric family; it is solved by bracketing (Brent) to 1e-9 mm.
+    A fraction outside what the family can reach at this pitch is a :class:`ParameterError`.
+    """
+    from scipy.optimize import brentq
+
+    fraction = v.real("hydrogel_fraction", fraction, lo=0, hi=1, lo_open=True, hi_open=True)
+    if design.pattern == "custom":
+        raise ParameterError("hydrogel_fraction", "a parametric pattern (a custom layout's gel is fixed)", "custom")
+    w_max = _layout.MAX_WIDTH_FRACTION[design.pattern] * design.pitch_mm * (1 - 1e-9)
+    lo, hi = (design.replace(width_mm=w).hydrogel_area_fraction() for w in (MIN_WIDTH_MM, w_max))
+    if not lo <= fraction <= hi:
+        raise ParameterError("hydrogel_fraction", f"a fraction the {design.pattern} pattern reaches at pitch "
+                             f"{design.pitch_mm:g} mm: {lo:.4g} to {hi:.4g}", fraction)
+    w = brentq(lambda w: design.replace(width_mm=w).hydrogel_area_fraction() - fraction, MIN_WIDTH_MM, w_max,
+               xtol=1e-9)
+    return design.replace(width_mm=float(w))
+
+
+def design_from_table(table: dict, base_dir: str | None = None) -> LatticeDesign:
+    """A design from a table of :data:`TABLE_KEYS` (a study's ``[design]`` merged with a grid point).
+
+    ``layout`` paths are relative to ``base_dir`` (the study file's folder). Errors name the table key.
+    """
+    from pathlib import Path
+
+    values = dict(table)
+    unknown = sorted(set(values) - set(TABLE_KEYS))
+    if unknown:
+        raise ParameterError(unknown[0], "a known design key: one of " + ", ".join(TABLE_KEYS), unknown[0])
+    if "layout" in values:
+        path = Path(str(values.pop("layout")))
+        if base_dir is not None and not path.is_absolute():
+            path = Path(base_dir) / path
+        if values.get("pattern", "custom") != "custom":
+            raise ParameterError("pattern", "custom (or nothing) with a layout file", values["pattern"])
+        values.update(pattern="custom", custom_polygons_mm=_layout.read_geojson(path, name="layout"))
+    fraction = values.pop("hydrogel_fraction", None)
+    if fraction is None:
+        return LatticeDesign(**values)
+    if "width_mm" in values:
+        raise ParameterError("hydrogel_fraction", "either hydrogel_fraction or width_mm, not both",
+                             f"hydrogel_fraction = {fraction!r}, width_mm = {values['width_mm']!r}")
+    return width_for_fraction(LatticeDesign(**values, width_mm=MIN_WIDTH_MM), fraction)

@@ -9,20 +9,33 @@ from pathlib import Path
 
 import numpy as np
 
-from ..design import PATTERNS, LatticeDesign
+from ..design import PATTERNS, RIMS, LatticeDesign, design_from_table
 from ..errors import ParameterError
+
+
+def _positions(text: str) -> tuple[float, ...]:
+    try:
+        return tuple(float(x) for x in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError("expected comma-separated centres in mm, e.g. 12.5,37.5,62.5,87.5, "
+                                         f"got {text!r}") from None
+
 
 _DESIGN_ARGS = [
     # flag, field, type, help
     ("--width", "width_mm", float, "channel width w (mm); 0 = uniform hydrogel layer"),
     ("--thickness", "thickness_mm", float, "conductive-layer thickness t (mm)"),
-    ("--pitch", "pitch_mm", float, "channel pitch p (mm)"),
-    ("--pattern", "pattern", str, f"lattice pattern ({', '.join(PATTERNS)})"),
+    ("--pitch", "pitch_mm", float, "distance between the channel centre lines either side of an island (mm)"),
+    ("--pattern", "pattern", str, f"layout family ({', '.join(PATTERNS)}; custom comes from --layout)"),
+    ("--rim", "rim", str, f"hydrogel channel round the rim ({', '.join(RIMS)})"),
+    ("--frame", "frame_mm", float, "silicone border round the lattice (mm); leads cross it to the electrodes"),
     ("--sensor-size", "size_mm", float, "sensor side L (mm)"),
     ("--total-thickness", "total_thickness_mm", float, "stack thickness H (mm)"),
     ("--sealing", "sealing_mm", float, "sealing-layer thickness (mm)"),
     ("--electrodes", "n_electrodes", int, "number of electrodes (multiple of 4)"),
     ("--electrode-width", "electrode_width_mm", float, "electrode width (mm)"),
+    ("--electrode-positions", "electrode_positions_mm", _positions,
+     "electrode centres along each side, counter-clockwise from its first corner (mm, comma-separated)"),
 ]
 
 
@@ -31,13 +44,30 @@ def add_design_args(parser: argparse.ArgumentParser) -> None:
     defaults = LatticeDesign()
     g = parser.add_argument_group("design (mm)")
     for flag, field, typ, text in _DESIGN_ARGS:
+        default = getattr(defaults, field)
         g.add_argument(flag, dest=field, type=typ, default=None,
-                       help=f"{text}; default {getattr(defaults, field)}")
+                       help=f"{text}; default {'evenly spaced' if default is None else default}")
+    g.add_argument("--no-leads", dest="electrode_leads", action="store_false", default=None,
+                   help="do not join electrodes that no channel reaches by straight leads (reject such layouts)")
+    g.add_argument("--layout", type=Path, default=None, metavar="FILE",
+                   help="custom layout: hydrogel polygons (mm) from a GeoJSON file (sets --pattern custom)")
+    g.add_argument("--hydrogel-fraction", type=float, default=None, metavar="F",
+                   help="solve the channel width so that this fraction of the layer is hydrogel (instead of --width)")
 
 
 def design_from_args(args: argparse.Namespace) -> LatticeDesign:
-    given = {f: getattr(args, f) for _, f, _, _ in _DESIGN_ARGS if getattr(args, f, None) is not None}
-    return LatticeDesign(**given)
+    """The design the options describe, validated (a ``--layout`` file is read and checked here)."""
+    table = {f: getattr(args, f) for _, f, _, _ in _DESIGN_ARGS if getattr(args, f, None) is not None}
+    for key in ("electrode_leads", "layout", "hydrogel_fraction"):
+        if getattr(args, key, None) is not None:
+            table[key] = getattr(args, key)
+    flags = {f: flag for flag, f, _, _ in _DESIGN_ARGS}
+    flags.update(custom_polygons_mm="--layout", layout="--layout", electrode_leads="--no-leads",
+                 hydrogel_fraction="--hydrogel-fraction")
+    try:
+        return design_from_table(table)
+    except ParameterError as exc:
+        raise ParameterError(flags.get(exc.name.split("[")[0], exc.name), exc.expected, exc.got) from None
 
 
 def add_touch_args(group) -> None:
