@@ -20,26 +20,37 @@ Write semantics (:meth:`ResultStore.put`). ``UNIQUE(design_key, phantom_key, set
 Voltages are stored as a little-endian float64 blob (``np.frombuffer(blob, '<f8')``); forces, timings,
 design, phantom and settings as JSON text. The store is meant to have one writer at a time (the sweep's
 parent process); any number of readers may read while it writes.
+
+One writer per folder (:func:`folder_lock`). A sweep or optimization holds an exclusive ``flock`` on
+``latticeopt.lock`` in its output folder for the whole run, so a second run started on the same folder refuses
+at once (:class:`~latticeopt.errors.FolderLockedError`, naming the folder and the PID holding it) instead of
+computing every phantom the first one is computing. The kernel drops the lock when the process ends, however it
+ends, so a killed run never leaves a stale lock. ``flock`` is local to one machine: two hosts writing one folder
+over a network file system are not kept apart.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
+import os
 import socket
 import sqlite3
+import threading
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from .errors import LatticeoptError
+from .errors import FolderLockedError, LatticeoptError
 
-__all__ = ["STATUSES", "STORE_NAME", "Evaluation", "ResultStore", "jsonable"]
+__all__ = ["LOCK_NAME", "STATUSES", "STORE_NAME", "Evaluation", "ResultStore", "folder_lock", "jsonable"]
 
 STORE_NAME = "results.sqlite"
+LOCK_NAME = "latticeopt.lock"
 STATUSES = ("ok", "failed")
 SCHEMA_VERSION = 1
 
@@ -313,3 +324,70 @@ class ResultStore:
     def integrity_check(self) -> str:
         """SQLite's ``PRAGMA integrity_check`` result (``'ok'`` when healthy)."""
         return self._db.execute("PRAGMA integrity_check").fetchone()[0]
+
+
+# -- one writer per output folder -------------------------------------------------------------------------
+_held: dict[str, list] = {}  # resolved folder -> [file descriptor, nesting depth] of the locks this process holds
+_held_guard = threading.Lock()
+
+
+@contextlib.contextmanager
+def folder_lock(folder: str | Path) -> Iterator[Path]:
+    """Hold the exclusive lock of an output folder while the block runs (see the module docstring).
+
+    Re-entrant within a process: a run that holds the lock may call code that takes it again (the optimizer
+    evaluates each design through :func:`latticeopt.sweep.evaluate_designs`, which locks too).
+
+    Parameters
+    ----------
+    folder
+        The output folder; created if missing.
+
+    Yields
+    ------
+    Path
+        The lock file (it holds ``PID host start-time`` of the holder while held).
+
+    Raises
+    ------
+    FolderLockedError
+        Another process holds the lock; the message names the folder and the holder's PID.
+    """
+    import fcntl
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / LOCK_NAME
+    key = str(folder.resolve())
+    with _held_guard:
+        entry = _held.get(key)
+        if entry is not None:
+            entry[1] += 1
+    if entry is None:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 400, 0).decode(errors="replace").split()
+            os.close(fd)
+            who = (f"PID {holder[0]} on {holder[1]} since {holder[2]}" if len(holder) >= 3
+                   else "a process that is just starting")
+            raise FolderLockedError("out", "an output folder no other latticeopt run is writing to (wait for it "
+                                    "to finish or choose another --out)", f"{folder} (locked by {who})") from None
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()} {socket.gethostname()} "
+                      f"{time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime())}\n".encode(), 0)
+        entry = [fd, 1]
+        with _held_guard:
+            _held[key] = entry
+    try:
+        yield path
+    finally:
+        with _held_guard:
+            entry[1] -= 1
+            last = entry[1] == 0
+            if last:
+                del _held[key]
+        if last:
+            os.ftruncate(entry[0], 0)  # no holder named once released
+            os.close(entry[0])  # closing the only descriptor releases the flock

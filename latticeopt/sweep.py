@@ -11,11 +11,14 @@ own transaction the moment it arrives, so a sweep killed at any point resumes wh
 nothing stored. Tasks go out design-major (all phantoms of one design, then the next) through a window of a
 few tasks per worker, so each worker keeps meeting the design whose mesh and reference it has just loaded.
 
-Failures. An exception of a *failure type* (:data:`FAILURE_TYPES`: latticeopt's own errors such as
-:class:`ConvergenceError`, numerical and solver errors, out of memory) or a non-finite ``V_rel`` is stored as
-a ``'failed'`` row with its message and traceback and the sweep goes on; failures are counted and never
-averaged. Any other exception (``TypeError``, ``KeyError``, ...) is a bug in the model: the sweep writes what
-has arrived, stops and re-raises it.
+Failures. A :class:`~latticeopt.errors.ModelFailure` (:class:`ConvergenceError`, :class:`MeshError`, or a
+custom model's own subclass), a PARDISO factorization that hit a zero pivot or a singular matrix, or a
+non-finite ``V_rel`` is a *failed phantom*: stored as a ``'failed'`` row with its message and traceback, and
+the sweep goes on. Any other exception (``ValueError``, ``IndexError``, ``NotImplementedError``, a model
+returning no ``v_rel``, a broken worker pool, ...) is a bug, not a property of the design: recording it as a
+failure would bias every comparison, so the sweep stores what has arrived, appends the traceback to
+``error.log`` in the output folder and raises :class:`~latticeopt.errors.ModelBugError` with a one-line
+message. How failed phantoms enter the tables: :mod:`latticeopt.report`.
 
 Backends. ``"local"``: with ``jobs == 1`` the tasks run in this process; with more, in a
 ``ProcessPoolExecutor`` of fresh (``spawn``) processes that inherit ``OMP/MKL/OPENBLAS_NUM_THREADS=1`` from the
@@ -45,19 +48,23 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import LatticeoptError, ParameterError
+from .errors import AllFailedError, LatticeoptError, ModelBugError, ModelFailure, ParameterError
 from .execution import BACKENDS, blas_threads, make_backend
-from .store import Evaluation, ResultStore, jsonable
+from .store import Evaluation, ResultStore, folder_lock, jsonable
 from .study import EvalSettings, Study
 
-__all__ = ["BACKENDS", "FAILURE_TYPES", "SweepResult", "blas_threads", "evaluate_designs", "resolve_model",
-           "result_to_evaluation", "run_sweep"]
+__all__ = ["BACKENDS", "ERROR_LOG", "FAILURE_TYPES", "SweepResult", "blas_threads", "evaluate_designs",
+           "is_model_failure", "resolve_model", "result_to_evaluation", "run_sweep"]
 
 log = logging.getLogger(__name__)
 
 #: Exceptions that mean "this phantom failed" (recorded, sweep goes on); anything else is a bug and stops it.
-FAILURE_TYPES: tuple[type[BaseException], ...] = (LatticeoptError, ArithmeticError, ValueError, RuntimeError,
-                                                  MemoryError)
+FAILURE_TYPES: tuple[type[BaseException], ...] = (ModelFailure,)
+#: PARDISO error codes of a numerically singular tangent (-4: zero pivot, -7: singular diagonal) -- what a
+#: badly deformed state produces; the other codes (inconsistent input, out of memory, ...) are bugs.
+_PARDISO_SINGULAR = (-4, -7)
+#: File in the output folder that collects the tracebacks of exceptions that stopped a run.
+ERROR_LOG = "error.log"
 _INFLIGHT_PER_WORKER = 2
 #: Phantoms per task for models with a ``prepare`` hook (see :func:`_evaluate_chunk`).
 CHUNK_PHANTOMS = 4
@@ -74,12 +81,15 @@ def _chunks(todo, tasks, size: int) -> list[list[int]]:
     return out
 
 
-def _failure_types() -> tuple[type[BaseException], ...]:
-    try:  # the PARDISO wrapper raises a plain Exception subclass for singular/failed factorizations
-        from pypardiso.pardiso_wrapper import PyPardisoError
-    except ImportError:
-        return FAILURE_TYPES
-    return (*FAILURE_TYPES, PyPardisoError)
+def is_model_failure(exc: BaseException) -> bool:
+    """Whether ``exc`` means "this phantom failed" (recorded as ``'failed'``) rather than a bug (stops the run).
+
+    True for :data:`FAILURE_TYPES` and for a PARDISO error with a singular-matrix code (the wrapper raises a
+    plain ``Exception`` subclass carrying PARDISO's code in ``.value``).
+    """
+    if isinstance(exc, FAILURE_TYPES):
+        return True
+    return type(exc).__name__ == "PyPardisoError" and getattr(exc, "value", None) in _PARDISO_SINGULAR
 
 
 def resolve_model(name: str) -> Callable:
@@ -96,13 +106,19 @@ def _model_name(fn: Callable) -> str:
     return f"{fn.__module__}:{fn.__qualname__}"
 
 
+def _bug_payload(exc: Exception, worker: dict, where: str) -> dict:
+    return {"status": "bug", "error": f"{type(exc).__name__}: {exc}", "traceback": traceback.format_exc(),
+            "where": where, "worker": worker}
+
+
 def _evaluate_chunk(evaluate: Callable, design, phantoms, settings: EvalSettings) -> list[dict]:
-    """Worker side: run the model on phantoms of one design; failures come back as data, bugs as exceptions.
+    """Worker side: run the model on phantoms of one design; failures and bugs come back as data.
 
     A model may expose ``evaluate.prepare(design, settings) -> callable(phantom) -> dict`` to build its
     per-design state (mesh, factorizations, reference) once per chunk instead of once per phantom; plain
     functions are called per phantom. If ``prepare`` itself fails, every phantom of the chunk is recorded as
-    failed with that error.
+    failed with that error. An exception that is not a model failure (:func:`is_model_failure`) ends the chunk
+    with a ``"bug"`` payload carrying its traceback (as text: not every exception survives pickling).
     """
     worker = {"host": socket.gethostname(), "pid": os.getpid(), "blas_threads": blas_threads()}
     t0 = time.perf_counter()
@@ -110,7 +126,9 @@ def _evaluate_chunk(evaluate: Callable, design, phantoms, settings: EvalSettings
     try:
         run = prepare(design, settings) if prepare is not None else (lambda ph: evaluate(design, ph, settings))
         setup_error = None
-    except _failure_types() as exc:
+    except Exception as exc:
+        if not is_model_failure(exc):
+            return [_bug_payload(exc, worker, "prepare")]
         setup_error = f"{type(exc).__name__}: {exc}\n{traceback.format_exc()}"
     setup = time.perf_counter() - t0
     payloads = []
@@ -122,7 +140,10 @@ def _evaluate_chunk(evaluate: Callable, design, phantoms, settings: EvalSettings
             try:
                 result = run(phantom)
                 status, error = "ok", None
-            except _failure_types() as exc:
+            except Exception as exc:
+                if not is_model_failure(exc):
+                    payloads.append(_bug_payload(exc, worker, "evaluate"))
+                    break
                 result, status = {}, "failed"
                 error = f"{type(exc).__name__}: {exc}\n{traceback.format_exc()}"
         # the chunk's set-up is charged to its first phantom, so summed seconds stay the real cost
@@ -170,6 +191,26 @@ def _jsonable_or_note(value):
     except (TypeError, ValueError):
         return f"<not stored: {type(value).__name__}>"
     return jsonable(value)
+
+
+def _write_error_log(out_dir: Path, header: str, text: str) -> Path:
+    """Append a stamped traceback to ``out_dir/error.log``; return its path."""
+    path = Path(out_dir) / ERROR_LOG
+    with open(path, "a") as fh:
+        fh.write(f"--- {time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime())} {header}\n{text.rstrip()}\n\n")
+    return path
+
+
+def _model_bug(out_dir: Path, settings: EvalSettings, stored: int, design, phantom, payload: dict) -> ModelBugError:
+    """Log a bug payload's traceback and build the one-line error that stops the run."""
+    where = {"prepare": "preparing", "result": "checking the result of"}.get(payload.get("where"), "evaluating")
+    what = f"{where} phantom {phantom.index} ({phantom.n_touches} touches) of {design.describe()}"
+    first = (payload["error"].splitlines() or [""])[0]
+    worker = payload.get("worker", {})
+    path = _write_error_log(out_dir, f"model {settings.model}, {what}, worker {worker.get('host', '?')}:"
+                                     f"{worker.get('pid', '?')}", payload.get("traceback") or payload["error"])
+    return ModelBugError(f"{first} while {what} (model {settings.model}): not a ModelFailure, so a bug; the run "
+                         f"stopped with {stored} results stored this run; traceback in {path}")
 
 
 @contextlib.contextmanager
@@ -249,20 +290,33 @@ def run_sweep(study: Study, evaluate: Callable | None = None, *, jobs: int | Non
         settings = dataclasses.replace(settings, model=_model_name(evaluate))
     out = Path(study.out_dir if out_dir is None else out_dir)
     _check_run_args(study.jobs if jobs is None else jobs, backend, scheduler)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "study.json").write_text(json.dumps({**study.as_dict(), "settings": settings.as_dict(),
-                                                "settings_key": settings.key}, indent=1, default=str))
-    evaluations, computed = evaluate_designs(
-        study.designs, study.phantoms, settings, out, evaluate, jobs=study.jobs if jobs is None else jobs,
-        backend=backend, scheduler=scheduler, progress=progress, retry_failed=retry_failed, label=study.name)
-    files, report = {}, ()
-    if outputs:
-        from .report import write_outputs
+    with folder_lock(out):  # one run per folder: a second one refuses rather than compute the same phantoms
+        (out / "study.json").write_text(json.dumps({**study.as_dict(), "settings": settings.as_dict(),
+                                                    "settings_key": settings.key}, indent=1, default=str))
+        evaluations, computed = evaluate_designs(
+            study.designs, study.phantoms, settings, out, evaluate, jobs=study.jobs if jobs is None else jobs,
+            backend=backend, scheduler=scheduler, progress=progress, retry_failed=retry_failed, label=study.name)
+        files, report = {}, ()
+        if outputs:
+            from .report import write_outputs
 
-        files, report = write_outputs(study, evaluations, out)
-    return SweepResult(study=study, settings=settings, out_dir=out, evaluations=evaluations, computed=computed,
-                       skipped=len(evaluations) - computed, seconds=time.perf_counter() - t_start, outputs=files,
-                       report=tuple(report))
+            files, report = write_outputs(study, evaluations, out)
+    result = SweepResult(study=study, settings=settings, out_dir=out, evaluations=evaluations, computed=computed,
+                         skipped=len(evaluations) - computed, seconds=time.perf_counter() - t_start, outputs=files,
+                         report=tuple(report))
+    if evaluations and result.failed == len(evaluations):
+        raise AllFailedError(all_failed_message(evaluations, computed, out, "results.csv" if outputs else None),
+                             result)
+    return result
+
+
+def all_failed_message(evaluations, computed: int, out: Path, table: str | None) -> str:
+    """One line for a run in which every evaluation failed: how many, the first error, where the rest are."""
+    first = next(((e.error or "").splitlines()[:1] for e in evaluations), [""])
+    where = f"every error is in {Path(out) / table}" if table else f"every error is in {Path(out) / 'results.sqlite'}"
+    return (f"every one of the {len(evaluations)} evaluations failed ({computed} computed now, the rest read from "
+            f"the store), so there is nothing to compare; the first: {first[0] if first else ''}; {where} "
+            "(--retry-failed runs them again)")
 
 
 def _check_run_args(jobs, backend, scheduler) -> None:
@@ -309,9 +363,10 @@ def evaluate_designs(designs, phantoms, settings: EvalSettings, out_dir: str | P
     if evaluate is None:
         evaluate = resolve_model(settings.model)
     tasks = [(d, p) for d in designs for p in phantoms]
-    dkeys = {d: d.content_hash() for d in designs}
-    keys = [(dkeys[d], p.key, settings.key) for d, p in tasks]
-    with ResultStore(out_dir) as store:
+    dkeys = [d.content_hash() for d in designs]
+    skey = settings.key
+    keys = [(dk, p.key, skey) for dk in dkeys for p in phantoms]
+    with folder_lock(out_dir), ResultStore(out_dir) as store:
         done = store.done_keys(settings.key, include_failed=not retry_failed)
         todo, seen = [], set(done)
         for i, k in enumerate(keys):
@@ -340,7 +395,7 @@ def _execute(tasks, todo, evaluate, settings, store, backend, jobs, scheduler, p
     chunk_size = CHUNK_PHANTOMS if getattr(evaluate, "prepare", None) is not None else 1
     queue = iter(_chunks(todo, tasks, chunk_size))
     pending: dict = {}
-    failed = 0
+    failed = stored = 0
     warned_threads = False
     aborted = True
     try:
@@ -355,14 +410,23 @@ def _execute(tasks, todo, evaluate, settings, store, backend, jobs, scheduler, p
                                           settings)] = chunk
                 if not pending:
                     break
-                # Results first, then any task that raised: its .result() re-raises the model's bug and
-                # stops the sweep only after everything that did arrive is stored.
-                for fut in sorted(runner.wait_any(pending), key=lambda f: f.exception() is not None):
+                # Everything that arrived is stored before a bug stops the sweep.
+                bug = None
+                for fut in runner.wait_any(pending):
                     chunk = pending.pop(fut)
-                    for i, payload in zip(chunk, fut.result(), strict=True):
+                    for i, payload in zip(chunk, fut.result()):  # a bug payload ends its chunk early
                         design, phantom = tasks[i]
-                        row = result_to_evaluation(payload, design, phantom, settings)
+                        if payload["status"] == "bug":
+                            bug = bug or (design, phantom, payload)
+                            break
+                        try:
+                            row = result_to_evaluation(payload, design, phantom, settings)
+                        except LatticeoptError as exc:  # the model broke its contract: a bug as well
+                            bug = bug or (design, phantom, {"error": str(exc), "where": "result",
+                                                            "traceback": traceback.format_exc()})
+                            break
                         store.put(row)
+                        stored += 1
                         failed += not row.ok
                         if not row.ok:
                             log.warning("phantom %d of %s failed: %s", phantom.index, design.describe(),
@@ -374,11 +438,20 @@ def _execute(tasks, todo, evaluate, settings, store, backend, jobs, scheduler, p
                             warned_threads = True
                         bar.update(1)
                         bar.set_postfix(failed=failed, refresh=False)
+                if bug is not None:
+                    raise _model_bug(store.path.parent, settings, stored, *bug)
         aborted = False
     except KeyboardInterrupt:
         log.warning("interrupted: every finished phantom is stored in %s; run the same command to resume",
                     store.path)
         raise
+    except ModelBugError:
+        raise
+    except Exception as exc:  # the machinery itself (a worker killed, a result that does not unpickle, ...)
+        path = _write_error_log(store.path.parent, f"sweep stopped: model {settings.model}", traceback.format_exc())
+        first = (f"{type(exc).__name__}: {exc}".splitlines() or [""])[0]
+        raise ModelBugError(f"sweep stopped by {first} ({stored} results stored this run); traceback in "
+                            f"{path}") from None
     finally:
         bar.close()
         runner.close(abort=aborted)

@@ -7,6 +7,7 @@ own modules.
 
 from __future__ import annotations
 
+import builtins
 import csv
 import os
 import signal
@@ -20,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from latticeopt.errors import ConvergenceError
+from latticeopt.errors import AllFailedError, ConvergenceError, FolderLockedError, LatticeoptError, ModelBugError
 from latticeopt.report import best_design
 from latticeopt.store import ResultStore
 from latticeopt.study import load_study
@@ -158,12 +159,121 @@ def test_failures_recorded_counted_not_averaged_then_retried(tmp_path):
     assert retried.computed == 1 and retried.failed == 1
 
 
+RAISE_ENV = "LATTICEOPT_TEST_RAISE"
+
+
+def fake_evaluate_raising(design, phantom, settings) -> dict:
+    """TEST DOUBLE raising the builtin exception named by ``$LATTICEOPT_TEST_RAISE`` on phantom index 2."""
+    if phantom.index == 2:
+        raise getattr(builtins, os.environ[RAISE_ENV])("fake bug in the model")
+    return fake_evaluate(design, phantom, settings)
+
+
+def fake_evaluate_always_failing(design, phantom, settings) -> dict:
+    """TEST DOUBLE whose every phantom fails (ConvergenceError)."""
+    raise ConvergenceError(f"fake: phantom {phantom.index} did not converge")
+
+
 def test_model_bug_stops_sweep_keeping_stored_rows(tmp_path):
     study = _study(tmp_path, n1=3, n2=0)
-    with pytest.raises(TypeError, match="fake bug"):
+    with pytest.raises(ModelBugError, match="TypeError: fake bug") as info:
         run_sweep(study, fake_evaluate_buggy, progress=False)
+    assert "\n" not in str(info.value) and str(study.out_dir / "error.log") in str(info.value)
     with ResultStore(study.out_dir, readonly=True) as store:
         assert len(store) == 2  # phantoms 0 and 1 of the first design, each committed as it finished
+
+
+@pytest.mark.parametrize("name, jobs", [("IndexError", 1), ("ValueError", 1), ("NotImplementedError", 1),
+                                        ("RuntimeError", 1), ("IndexError", 2)])
+def test_non_model_failures_stop_the_sweep_with_the_traceback_logged(tmp_path, monkeypatch, name, jobs):
+    monkeypatch.setenv(RAISE_ENV, name)
+    study = _study(tmp_path, n1=3, n2=0)
+    with pytest.raises(ModelBugError) as info:
+        run_sweep(study, fake_evaluate_raising, jobs=jobs, progress=False)
+    msg = str(info.value)
+    assert msg.startswith(f"{name}: fake bug in the model while evaluating phantom 2") and "\n" not in msg
+    text = (study.out_dir / "error.log").read_text()
+    assert "Traceback (most recent call last)" in text and "in fake_evaluate_raising" in text
+    assert f"{name}: fake bug in the model" in text
+    with ResultStore(study.out_dir, readonly=True) as store:
+        rows = store.rows()
+        # nothing recorded as a failed phantom; with one worker, phantoms 0 and 1 were stored before it stopped
+        assert all(e.ok for e in rows) and {int(e.phantom["index"]) for e in rows} <= {0, 1}
+        assert len(rows) == 2 or jobs > 1
+
+
+def test_model_failures_and_singular_factorizations_are_phantom_failures():
+    from pypardiso.pardiso_wrapper import PyPardisoError
+
+    from latticeopt.errors import MeshError, ModelFailure
+    from latticeopt.sweep import is_model_failure
+
+    assert is_model_failure(ConvergenceError("x")) and is_model_failure(MeshError("x"))
+    assert is_model_failure(ModelFailure("a custom model's own failure"))
+    assert is_model_failure(PyPardisoError(-4)) and is_model_failure(PyPardisoError(-7))
+    for bug in (PyPardisoError(-1), PyPardisoError(-2), ValueError("x"), RuntimeError("x"), IndexError("x"),
+                NotImplementedError("x"), FloatingPointError("x"), MemoryError(), LatticeoptError("x")):
+        assert not is_model_failure(bug), bug
+
+
+def _cli(tmp_path: Path, model: str, *extra: str, env_extra: dict | None = None) -> subprocess.CompletedProcess:
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(TESTS), os.environ.get("PYTHONPATH", "")]),
+           **(env_extra or {})}
+    cmd = [sys.executable, "-m", "latticeopt", "sweep", str(tmp_path / "study.toml"), "--evaluate", model,
+           "--no-progress", "--jobs", "1", *extra]
+    return subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=120)
+
+
+def test_cli_bug_exits_non_zero_with_one_line_and_the_traceback_in_the_log(tmp_path):
+    study = _study(tmp_path, n1=3, n2=0)
+    done = _cli(tmp_path, "test_sweep:fake_evaluate_raising", env_extra={RAISE_ENV: "IndexError"})
+    assert done.returncode == 1 and done.stderr.count("\n") == 1, done.stderr
+    assert "Traceback" not in done.stderr and "IndexError" in done.stderr and "error.log" in done.stderr
+    assert "in fake_evaluate_raising" in (study.out_dir / "error.log").read_text()
+
+
+def test_every_evaluation_failed_is_an_error(tmp_path):
+    study = _study(tmp_path)
+    with pytest.raises(AllFailedError, match="every one of the 6 evaluations failed") as info:
+        run_sweep(study, fake_evaluate_always_failing, progress=False)
+    assert info.value.result.failed == 6 and "\n" not in str(info.value)
+    assert (study.out_dir / "results.csv").exists()  # the errors are written out before the run reports failure
+    done = _cli(tmp_path, "test_sweep:fake_evaluate_always_failing")
+    assert done.returncode == 1 and done.stderr.count("\n") == 1, done.stderr
+    assert "every one of the 6 evaluations failed" in done.stderr and "ConvergenceError" in done.stderr
+    # one phantom that succeeds is enough for a normal exit
+    assert run_sweep(study, fake_evaluate, progress=False, retry_failed=True).failed == 0
+
+
+def test_second_run_on_a_locked_folder_refuses(tmp_path):
+    study = _study(tmp_path)
+    holder = subprocess.Popen([sys.executable, "-c", "import sys\nfrom latticeopt.store import folder_lock\n"
+                               "with folder_lock(sys.argv[1]):\n    print('locked', flush=True)\n    sys.stdin.read()",
+                               str(study.out_dir)], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "locked"
+        with pytest.raises(FolderLockedError) as info:
+            run_sweep(study, fake_evaluate, progress=False)
+        assert str(study.out_dir) in str(info.value) and f"PID {holder.pid}" in str(info.value)
+        done = _cli(tmp_path, "test_sweep:fake_evaluate")
+        assert done.returncode == 2 and done.stderr.count("\n") == 1, done.stderr
+        assert str(study.out_dir) in done.stderr and f"PID {holder.pid}" in done.stderr
+        with ResultStore(study.out_dir) as store:
+            assert len(store) == 0  # neither run computed anything
+    finally:
+        holder.communicate("", timeout=30)
+    assert run_sweep(study, fake_evaluate, progress=False).computed == 6  # released when its holder ended
+
+
+def test_folder_lock_is_reentrant_and_released(tmp_path):
+    from latticeopt.store import LOCK_NAME, folder_lock
+
+    with folder_lock(tmp_path) as path, folder_lock(tmp_path):
+        assert path.read_text().split()[0] == str(os.getpid())
+    assert path.read_text() == ""
+    with folder_lock(tmp_path):  # free again
+        pass
+    assert (tmp_path / LOCK_NAME).exists()
 
 
 def _store_keys(path: Path) -> set[tuple[str, str]]:
@@ -274,7 +384,6 @@ def test_cli_rejects_bad_study_before_any_work(tmp_path):
 
 def test_model_return_contract():
     from latticeopt.design import LatticeDesign
-    from latticeopt.errors import LatticeoptError
     from latticeopt.phantoms import random_phantom
     from latticeopt.study import EvalSettings
     from latticeopt.sweep import result_to_evaluation
