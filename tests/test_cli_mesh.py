@@ -42,7 +42,7 @@ def test_mesh_json_summary(tmp_path, capsys):
     assert len(lines) == 1  # one JSON object, nothing else on stdout
     s = json.loads(lines[0])
     assert JSON_KEYS <= s.keys()
-    assert s["region_volumes_mm3"]["hydrogel"] == pytest.approx(16128.0, rel=1e-12)
+    assert s["region_volumes_mm3"]["hydrogel"] == pytest.approx(14448.0, rel=1e-12)
     assert sum(s["region_volumes_mm3"].values()) == pytest.approx(90000.0)
     assert s["electrode_areas_mm2"] == pytest.approx([12.0] * 16)
     assert s["nodes"] > 0 and s["tets"] > s["nodes"] and 0 < s["min_quality"] <= 1 and s["seconds"] > 0
@@ -57,10 +57,11 @@ def test_mesh_json_summary(tmp_path, capsys):
 
 def test_design_and_mesh_options_reach_the_mesh(tmp_path, capsys):
     code, out, _ = _run(["mesh", "--width", "2", "--thickness", "1.5", "--pitch", "10", "--electrode-width", "3",
-                         "--size", "4", "--json", "--no-cache", "--cache-dir", str(tmp_path)], capsys)
+                         "--rim", "channel", "--size", "4", "--json", "--no-cache", "--cache-dir", str(tmp_path)],
+                        capsys)
     assert code == 0
     s = json.loads(out)
-    # Pitch 10 divides 100: hydrogel = t L^2 (1 - (1 - w/p)^2).
+    # Pitch 10 divides 100 and the rim channel's halves make one more line: hydrogel = t L^2 (1 - (1 - w/p)^2).
     assert s["region_volumes_mm3"]["hydrogel"] == pytest.approx(1.5 * 1e4 * (1 - 0.8 ** 2), rel=1e-12)
     assert s["electrode_areas_mm2"] == pytest.approx([4.5] * 16)
     assert not list(tmp_path.iterdir())  # --no-cache wrote nothing
@@ -73,7 +74,7 @@ def test_mesh_text_summary_and_vtu_output(tmp_path, capsys):
     code, out, err = _run(["mesh", "--width", "4", "--thickness", "3", "--size", "4", "-o", str(vtu),
                            "--cache-dir", str(tmp_path / "c")], capsys)
     assert code == 0, err
-    assert "nodes" in out and "hydrogel 16128.0" in out and f"wrote {vtu}" in out
+    assert "nodes" in out and "hydrogel 14448.0" in out and f"wrote {vtu}" in out
     m = meshio.read(vtu)
     tet = [i for i, c in enumerate(m.cells) if c.type == "tetra"][0]
     tri = [i for i, c in enumerate(m.cells) if c.type == "triangle"][0]
@@ -87,20 +88,29 @@ def test_invalid_width_exits_2_with_one_line_and_no_traceback(tmp_path):
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1, r.stderr
     assert "Traceback" not in r.stderr
-    assert "width_mm" in lines[0] and "12.5" in lines[0] and "20" in lines[0]
+    assert "--width" in lines[0] and "12.5" in lines[0] and "20" in lines[0]
     assert r.stdout == ""
     assert not (tmp_path / "cache").exists()
 
 
 @pytest.mark.parametrize("argv, names", [
-    (["mesh", "--thickness", "8"], ["thickness_mm", "substrate", "8"]),
-    (["mesh", "--width", "-1"], ["width_mm", "-1"]),
-    (["mesh", "--width", "nan"], ["width_mm", "nan"]),
+    (["mesh", "--thickness", "8"], ["--thickness", "substrate", "8"]),
+    (["mesh", "--width", "-1"], ["--width", "-1"]),
+    (["mesh", "--width", "nan"], ["--width", "nan"]),
     (["mesh", "--width", "abc"], ["--width", "abc"]),
     (["mesh", "--mesher", "gmsh"], ["mesher", "'grid', 'tetwild'", "gmsh"]),
     (["mesh", "--size", "0"], ["size_mm", "0"]),
-    (["mesh", "--electrodes", "6"], ["n_electrodes", "multiple of 4", "6"]),
-    (["mesh", "--pattern", "hexagonal"], ["pattern", "'square'", "hexagonal"]),
+    (["mesh", "--electrodes", "6"], ["--electrodes", "multiple of 4", "6"]),
+    (["mesh", "--pattern", "honeycomb"], ["--pattern", "'square', 'hexagonal'", "honeycomb"]),
+    (["mesh", "--rim", "edge"], ["--rim", "'none', 'channel'", "edge"]),
+    (["mesh", "--frame", "-1"], ["--frame", "-1"]),
+    (["mesh", "--pattern", "triangular", "--width", "9"], ["--width", "2/3 pitch_mm", "9"]),
+    (["mesh", "--layout", "missing.geojson"], ["--layout", "missing.geojson"]),
+    (["mesh", "--layout", "layout.txt"], ["--layout", ".geojson", "layout.txt"]),
+    (["mesh", "--electrode-positions", "10,20,x"], ["--electrode-positions", "10,20,x"]),
+    (["mesh", "--electrode-positions", "10,20,30"], ["--electrode-positions", "4 increasing"]),
+    (["mesh", "--hydrogel-fraction", "0.99", "--pattern", "hexagonal"], ["--hydrogel-fraction", "0.99"]),
+    (["mesh", "--hydrogel-fraction", "0.3", "--width", "2"], ["--hydrogel-fraction", "not both"]),
     (["mesh", "-o", "sensor.stl"], ["-o", ".vtu", "sensor.stl"]),
     (["render", "-o", "sensor.jpg"], ["-o", ".png", "sensor.jpg"]),
     (["mesh", "--no-such-option"], ["--no-such-option"]),
@@ -136,7 +146,7 @@ def test_render_writes_a_png_showing_the_lattice(tmp_path, capfd):
 
 def test_tetwild_acceptance_through_the_cli(tmp_path_factory, capfd):
     """Issue acceptance: ``latticeopt mesh --width 4 --thickness 3 --json --mesher tetwild`` reports the hydrogel
-    volume within 0.5 % of 16128 mm^3; fTetWild's own printing must not leak into the JSON on stdout.
+    volume within 0.5 % of 14448 mm^3 (no rim channel: 7 lines of 4 mm per axis, 3e4 (1 - 0.72^2)); fTetWild's own printing must not leak into the JSON on stdout.
 
     Shares its cache folder with tests/test_mesh_tetwild.py (same design and settings).
     """
@@ -149,6 +159,6 @@ def test_tetwild_acceptance_through_the_cli(tmp_path_factory, capfd):
     assert len(lines) == 1, out[:500]
     s = json.loads(lines[0])
     assert s["mesher"] == "tetwild"
-    assert abs(s["region_volumes_mm3"]["hydrogel"] / 16128.0 - 1) < 0.005
+    assert abs(s["region_volumes_mm3"]["hydrogel"] / 14448.0 - 1) < 0.005
     assert len(s["electrode_areas_mm2"]) == 16
     assert abs(np.mean(s["electrode_areas_mm2"]) / 12.0 - 1) < 0.01  # per-electrode: tests/test_mesh_tetwild.py
