@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from . import _validate as v
-from .design import DESIGN_FIELDS, LatticeDesign
+from .design import DESIGN_FIELDS, TABLE_KEYS, LatticeDesign, design_from_table
 from .errors import ParameterError
 from .mesh import MeshSettings
 from .phantoms import MAX_TOUCHES, Comparison, Phantom, PressSeries, RandomPhantoms
@@ -340,9 +340,10 @@ def _press_series(where: _Where, tab: dict) -> PressSeries:
     return PressSeries(depths_mm=tuple(float(x) for x in depths), compare=tuple(compare), **vals)
 
 
-def _designs(where: _Where, fixed: dict, grid: dict, grid_given: bool) -> tuple[tuple[tuple[str, tuple], ...], tuple]:
-    _known(where, fixed, DESIGN_FIELDS, "design")
-    _known(where, grid, DESIGN_FIELDS, "grid")
+def _designs(where: _Where, fixed: dict, grid: dict, grid_given: bool,
+             base_dir: str | None = None) -> tuple[tuple[tuple[str, tuple], ...], tuple]:
+    _known(where, fixed, TABLE_KEYS, "design")
+    _known(where, grid, TABLE_KEYS, "grid")
     if not grid and grid_given:
         raise where.error("grid", "at least one design field with a list of values (leave [grid] out for a "
                           "single design)", grid)
@@ -356,13 +357,14 @@ def _designs(where: _Where, fixed: dict, grid: dict, grid_given: bool) -> tuple[
     for combo in itertools.product(*(grid[k] for k in names)):
         chosen = dict(zip(names, combo))
         try:
-            designs.append(LatticeDesign(**fixed, **chosen))
+            designs.append(design_from_table({**fixed, **chosen}, base_dir))
         except ParameterError as exc:
             table = "grid" if exc.name in chosen else "design"
             context = f" (in the grid point {', '.join(f'{k} = {x!r}' for k, x in chosen.items())})"
             raise where.wrap(f"{table}.{exc.name}", exc, context) from None
     for k, vals in grid.items():
-        seen = {getattr(d, k) for d in designs}
+        seen = {json.dumps(float(x) if isinstance(x, numbers.Real) and not isinstance(x, bool) else x,
+                           sort_keys=True) for x in vals}
         if len(seen) != len(vals):
             raise where.error(f"grid.{k}", "a list without repeated values", vals)
     return tuple((k, tuple(grid[k])) for k in names), tuple(designs)
@@ -409,7 +411,9 @@ def study_from_dict(raw: Mapping, *, source: str = "<dict>", overridden: Sequenc
     if cache_dir is not None:
         cache_dir = _string(where.name("cache_dir"), cache_dir)
 
-    grid, designs = _designs(where, _table(where, raw, "design"), _table(where, raw, "grid"), "grid" in raw)
+    base_dir = str(Path(source).parent) if source != "<dict>" else None
+    grid, designs = _designs(where, _table(where, raw, "design"), _table(where, raw, "grid"), "grid" in raw,
+                             base_dir)
     sizes = {d.size_mm for d in designs}
     if len(sizes) != 1:
         raise where.error("grid.size_mm", "one sensor size for all designs (phantoms are shared by every "

@@ -146,7 +146,8 @@ def test_render_writes_a_png_showing_the_lattice(tmp_path, capfd):
 
 def test_tetwild_acceptance_through_the_cli(tmp_path_factory, capfd):
     """Issue acceptance: ``latticeopt mesh --width 4 --thickness 3 --json --mesher tetwild`` reports the hydrogel
-    volume within 0.5 % of 14448 mm^3 (no rim channel: 7 lines of 4 mm per axis, 3e4 (1 - 0.72^2)); fTetWild's own printing must not leak into the JSON on stdout.
+    volume within 0.5 % of 14448 mm^3 (no rim channel: 7 lines of 4 mm per axis, 3e4 (1 - 0.72^2)); fTetWild's own
+    printing must not leak into the JSON on stdout.
 
     Shares its cache folder with tests/test_mesh_tetwild.py (same design and settings).
     """
