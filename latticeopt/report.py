@@ -1,16 +1,25 @@
 """Tables and figures of a finished sweep, computed from the stored evaluations only.
 
 Because everything here is a function of the store's rows (in the study's task order), a resumed sweep and
-an uninterrupted one produce the same files. Statistics use the ``'ok'`` rows only; failures are counted in
-their own column and never averaged in. Standard errors are ``std(ddof=1) / sqrt(n)`` over phantoms.
+an uninterrupted one produce the same files. Standard errors are ``std(ddof=1) / sqrt(n)`` over phantoms.
+
+Failed phantoms (:func:`comparison_set`). Designs are compared on the phantoms that succeeded for *every*
+design compared, the same set for all. Dropping each design's own failures instead would score each design on
+a different phantom set: a design whose hardest presses fail would be averaged over easier ones and could rank
+above a design that solved them all, and the common-random-numbers pairing of the comparison would break. A
+design none of whose phantoms succeeded is left out of the comparison (and named), so one unmeshable design
+does not empty the set. ``report.txt`` says how many phantoms were used and lists the excluded ones with the
+design(s) that failed them and why (all of them in ``excluded.csv``); ``results.csv`` marks the rows used
+(``compared``).
 
 Outputs (:func:`write_outputs`): ``results.csv`` (one row per design x phantom), ``summary.csv`` (per design:
-mean V_rel, standard error, n, failures, and the mean per touch count), ``vrel_lines.png`` (V_rel against the
-first of ``width_mm``/the first grid field, one line per value of the other grid fields, error bars = SE, the
-layout of the paper's Fig. 4), ``vrel_heatmap.png`` (two-field grids) and ``report.txt`` (the best design with
-its uncertainty and a paired comparison with the runner-up — paired because all designs see the same
-phantoms). Press studies write ``press.csv``, ``press.png`` and the ratios at the deepest depth instead of the
-summary and grid figures.
+mean V_rel, standard error and ``n`` over the common phantoms, the design's own successes ``n_ok`` and failures,
+and the mean per touch count), ``vrel_lines.png`` (V_rel against the first of ``width_mm``/the first grid field,
+one line per value of the other grid fields, error bars = SE, the layout of the paper's Fig. 4),
+``vrel_heatmap.png`` (two-field grids), ``excluded.csv`` (when a phantom was excluded) and ``report.txt`` (the
+best design with its uncertainty and a paired comparison with the runner-up — paired because all designs see
+the same phantoms). Press studies write ``press.csv``, ``press.png`` and the ratios at the deepest depth instead
+of the summary and grid figures.
 """
 
 from __future__ import annotations
@@ -26,7 +35,7 @@ import numpy as np
 from .store import Evaluation
 from .study import Study
 
-__all__ = ["best_design", "plot_heatmap", "plot_lines", "plot_press", "press_curves", "press_ratios",
+__all__ = ["best_design", "comparison_set", "plot_heatmap", "plot_lines", "plot_press", "press_curves", "press_ratios",
            "results_rows", "summarize", "write_csv", "write_outputs"]
 
 
@@ -43,32 +52,72 @@ def _by_design(study: Study, evaluations: Sequence[Evaluation]) -> list[list[Eva
     return [list(evaluations[i * n:(i + 1) * n]) for i in range(len(study.designs))]
 
 
+def _first_line(text: str | None) -> str:
+    return (text or "").splitlines()[0] if text else ""
+
+
+def comparison_set(study: Study, evaluations: Sequence[Evaluation]) -> dict:
+    """The phantoms the designs are compared on: those that succeeded for every design compared.
+
+    Returns
+    -------
+    dict
+        ``compared``: indices of the designs compared (those with at least one successful phantom);
+        ``not_compared``: the others; ``used``: positions in ``study.phantoms`` that succeeded for every compared
+        design; ``excluded``: one dict per other phantom, ``{"phantom": position, "failed": [(design index,
+        first line of the error), ...]}`` naming every compared design that failed it.
+    """
+    groups = _by_design(study, evaluations)
+    compared = [i for i, rows in enumerate(groups) if any(e.ok for e in rows)]
+    used, excluded = [], []
+    for j in range(len(study.phantoms)):
+        failed = [(i, _first_line(groups[i][j].error)) for i in compared if not groups[i][j].ok]
+        if failed:
+            excluded.append({"phantom": j, "failed": failed})
+        else:
+            used.append(j)
+    if not compared:
+        used = []
+    return {"compared": compared, "not_compared": [i for i in range(len(groups)) if i not in compared],
+            "used": used, "excluded": excluded}
+
+
 def results_rows(study: Study, evaluations: Sequence[Evaluation]) -> list[dict]:
-    """One row per (design, phantom) in task order: grid fields, phantom, outcome, keys."""
+    """One row per (design, phantom) in task order: grid fields, phantom, outcome, whether compared, keys."""
+    cmp = comparison_set(study, evaluations)
+    compared, used = set(cmp["compared"]), set(cmp["used"])
+    n = len(study.phantoms)
     rows = []
-    for (design, phantom), e in zip(study.tasks(), evaluations):
+    for k, ((design, phantom), e) in enumerate(zip(study.tasks(), evaluations)):
         row = {f: getattr(design, f) for f in study.grid_fields}
         row.update(phantom_index=phantom.index, n_touches=phantom.n_touches,
                    touches=json.dumps([[t.x_mm, t.y_mm, t.radius_mm, t.depth_mm] for t in phantom.touches]),
                    status=e.status, v_rel=e.v_rel, force_total_N=sum(e.forces_N) if e.forces_N else None,
                    forces_N=json.dumps(list(e.forces_N)), seconds=e.seconds,
-                   error=(e.error or "").splitlines()[0] if e.error else "",
+                   error=_first_line(e.error), compared=k // n in compared and k % n in used,
                    design_key=e.design_key, phantom_key=e.phantom_key, settings_key=e.settings_key)
         rows.append(row)
     return rows
 
 
 def summarize(study: Study, evaluations: Sequence[Evaluation]) -> list[dict]:
-    """Per design: mean V_rel, standard error, n (ok), failures, and mean V_rel per touch count."""
+    """Per design: mean V_rel, standard error and n over the common phantoms (:func:`comparison_set`), the
+    design's own successes (``n_ok``) and failures, and mean V_rel per touch count over the common phantoms.
+
+    A design that is not compared (no successful phantom) gets NaN means and ``n = 0``.
+    """
     counts = sorted({p.n_touches for p in study.phantoms})
+    cmp = comparison_set(study, evaluations)
+    compared = set(cmp["compared"])
     out = []
-    for design, rows in zip(study.designs, _by_design(study, evaluations)):
-        ok = [e for e in rows if e.ok]
-        mean, se = _mean_se([e.v_rel for e in ok])
+    for i, (design, rows) in enumerate(zip(study.designs, _by_design(study, evaluations))):
+        used = cmp["used"] if i in compared else []
+        n_ok = sum(e.ok for e in rows)
+        mean, se = _mean_se([rows[j].v_rel for j in used])
         row = {f: getattr(design, f) for f in study.grid_fields}
-        row.update(v_rel_mean=mean, v_rel_se=se, n=len(ok), failed=len(rows) - len(ok))
+        row.update(v_rel_mean=mean, v_rel_se=se, n=len(used), n_ok=n_ok, failed=len(rows) - n_ok)
         for k in counts:
-            vals = [e.v_rel for e, p in zip(rows, study.phantoms) if e.ok and p.n_touches == k]
+            vals = [rows[j].v_rel for j in used if study.phantoms[j].n_touches == k]
             row[f"v_rel_mean_{k}touch"] = _mean_se(vals)[0]
         row["design_key"] = design.content_hash()
         out.append(row)
@@ -76,21 +125,24 @@ def summarize(study: Study, evaluations: Sequence[Evaluation]) -> list[dict]:
 
 
 def best_design(study: Study, evaluations: Sequence[Evaluation]) -> dict | None:
-    """The design with the highest mean V_rel, with its SE and a paired comparison to the runner-up.
+    """The design with the highest mean V_rel over the common phantoms, its SE, a paired comparison to the runner-up.
 
-    Returns ``None`` when no design has a result. ``paired_diff``/``paired_se`` are the mean and SE of
-    ``V_rel(best) - V_rel(runner-up)`` over the phantoms both evaluated: with common random numbers this
-    difference is far less noisy than the two SEs suggest.
+    Every mean is over the same phantoms, those that succeeded for every compared design
+    (:func:`comparison_set`, returned under ``"comparison"``). Returns ``None`` when no phantom succeeded for
+    every compared design. ``paired_diff``/``paired_se`` are the mean and SE of ``V_rel(best) -
+    V_rel(runner-up)`` over those phantoms: with common random numbers this difference is far less noisy than
+    the two SEs suggest.
     """
     summary = summarize(study, evaluations)
     groups = _by_design(study, evaluations)
+    cmp = comparison_set(study, evaluations)
     order = sorted((i for i, s in enumerate(summary) if s["n"] > 0), key=lambda i: -summary[i]["v_rel_mean"])
     if not order:
         return None
-    best = {"design": study.designs[order[0]], "summary": summary[order[0]]}
+    best = {"design": study.designs[order[0]], "summary": summary[order[0]], "comparison": cmp}
     if len(order) > 1:
         a, b = groups[order[0]], groups[order[1]]
-        diffs = [x.v_rel - y.v_rel for x, y in zip(a, b) if x.ok and y.ok]
+        diffs = [a[j].v_rel - b[j].v_rel for j in cmp["used"]]
         d, se = _mean_se(diffs)
         best.update(runner_up=study.designs[order[1]], runner_up_summary=summary[order[1]], paired_diff=d,
                     paired_se=se, paired_n=len(diffs))
@@ -141,7 +193,9 @@ def plot_lines(study: Study, summary: Sequence[dict], path: Path) -> Path:
                     marker="o", capsize=3, label=_label(pts[0][2], others) or "all")
     ax.set_xlabel(x_field.replace("_mm", " (mm)"))
     ax.set_ylabel("mean $V_{rel}$ (± SE)")
-    ax.set_title(f"{study.name}: {len(study.phantoms)} phantoms per design")
+    n = max((s["n"] for s in summary), default=0)
+    common = "" if n == len(study.phantoms) else f" (the {n} of {len(study.phantoms)} all designs solved)"
+    ax.set_title(f"{study.name}: {n} phantoms per design{common}")
     ax.grid(alpha=0.3)
     if len(lines) > 1:
         ax.legend(fontsize="small")
@@ -237,6 +291,42 @@ def _fmt(design, fields) -> str:
     return _label(design, fields) or design.describe()
 
 
+#: Excluded phantoms listed in ``report.txt`` (and so printed by the CLI); ``excluded.csv`` has them all.
+_LISTED = 10
+
+
+def _comparison_lines(study: Study, evaluations: Sequence[Evaluation]) -> tuple[list[str], list[dict]]:
+    """Report lines on which phantoms the designs were compared on, and the rows of ``excluded.csv``."""
+    cmp = comparison_set(study, evaluations)
+    groups = _by_design(study, evaluations)
+    n = len(study.phantoms)
+    lines = []
+    for i in cmp["not_compared"]:
+        lines.append(f"not compared: {_fmt(study.designs[i], study.grid_fields)}: every phantom failed (first: "
+                     f"{_first_line(groups[i][0].error)})")
+    if not cmp["compared"]:
+        return lines, []
+    if not cmp["excluded"]:
+        lines.insert(0, f"designs compared on all {n} phantoms (no compared design failed one)")
+        return lines, []
+    lines.insert(0, f"designs compared on the {len(cmp['used'])} of {n} phantoms that every compared design "
+                    f"solved; {len(cmp['excluded'])} excluded because a design failed them (a phantom one design "
+                    "fails is left out for all, so every mean and difference is over the same phantoms)")
+    rows = []
+    for k, ex in enumerate(cmp["excluded"]):
+        p = study.phantoms[ex["phantom"]]
+        why = "; ".join(f"{_fmt(study.designs[i], study.grid_fields)}: {err}" for i, err in ex["failed"])
+        if k < _LISTED:
+            lines.append(f"excluded phantom {p.index} ({p.n_touches} touches): failed for {why}")
+        for i, err in ex["failed"]:
+            rows.append({"phantom_index": p.index, "n_touches": p.n_touches, "phantom_key": p.key,
+                         "design": _fmt(study.designs[i], study.grid_fields),
+                         "design_key": study.designs[i].content_hash(), "error": err})
+    if len(cmp["excluded"]) > _LISTED:
+        lines.append(f"... and {len(cmp['excluded']) - _LISTED} more excluded phantoms, all in excluded.csv")
+    return lines, rows
+
+
 def write_outputs(study: Study, evaluations: Sequence[Evaluation], out: Path) -> tuple[dict, list[str]]:
     """Write the tables, figures and ``report.txt`` of a study into ``out``.
 
@@ -251,7 +341,12 @@ def write_outputs(study: Study, evaluations: Sequence[Evaluation], out: Path) ->
     files = {"results": write_csv(out / "results.csv", results_rows(study, evaluations))}
     failed = sum(not e.ok for e in evaluations)
     lines = [f"{study.name}: {len(study.designs)} designs x {len(study.phantoms)} phantoms = {len(evaluations)} "
-             f"evaluations, {failed} failed (failures are excluded from every mean)"]
+             f"evaluations, {failed} failed"]
+    cmp_lines, excluded_rows = _comparison_lines(study, evaluations)
+    if excluded_rows:
+        files["excluded"] = write_csv(out / "excluded.csv", excluded_rows)
+    elif (out / "excluded.csv").exists():  # a retry fixed them: no stale list beside the new tables
+        (out / "excluded.csv").unlink()
     if study.kind == "press":
         files["press"] = write_csv(out / "press.csv", press_curves(study, evaluations))
         files["press_plot"] = plot_press(study, evaluations, out / "press.png")
@@ -268,7 +363,7 @@ def write_outputs(study: Study, evaluations: Sequence[Evaluation], out: Path) ->
             files["heatmap"] = heat
         best = best_design(study, evaluations)
         if best is None:
-            lines.append("no design has a successful evaluation")
+            lines.append("no design compared: no phantom succeeded for every design that solved any")
         else:
             s = best["summary"]
             lines.append(f"best design: {_fmt(best['design'], study.grid_fields)}: mean V_rel = "
@@ -279,6 +374,7 @@ def write_outputs(study: Study, evaluations: Sequence[Evaluation], out: Path) ->
                 lines.append(f"runner-up: {_fmt(best['runner_up'], study.grid_fields)}: {r['v_rel_mean']:.5f} ± "
                              f"{r['v_rel_se']:.5f}; paired difference {best['paired_diff']:.5f} ± "
                              f"{best['paired_se']:.5f} (SE over {best['paired_n']} common phantoms, z = {z:.1f})")
+    lines += cmp_lines
     (out / "report.txt").write_text("\n".join(lines) + "\n")
     files["report"] = out / "report.txt"
     return files, lines

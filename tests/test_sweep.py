@@ -174,6 +174,67 @@ def fake_evaluate_always_failing(design, phantom, settings) -> dict:
     raise ConvergenceError(f"fake: phantom {phantom.index} did not converge")
 
 
+FAIL_ENV = "LATTICEOPT_TEST_FAIL_PHANTOMS"
+
+
+def fake_evaluate_fails_chosen(design, phantom, settings) -> dict:
+    """TEST DOUBLE: ConvergenceError on the w = 0 design for the phantoms ``$LATTICEOPT_TEST_FAIL_PHANTOMS``
+    lists as ``touches:index`` pairs (comma-separated)."""
+    chosen = {tuple(int(x) for x in item.split(":")) for item in os.environ.get(FAIL_ENV, "").split(",") if item}
+    if design.width_mm == 0 and (phantom.n_touches, phantom.index) in chosen:
+        raise ConvergenceError("fake: the press was too hard")
+    return fake_evaluate(design, phantom, settings)
+
+
+def test_designs_are_compared_on_the_phantoms_every_design_solved(tmp_path, monkeypatch):
+    study = _study(tmp_path, n1=4, n2=2)
+    w0, w2 = study.designs
+    # w = 2 reads more than w = 0 on every phantom; w = 0 fails exactly its two weakest phantoms
+    assert all(_fake_value(w2, p) > _fake_value(w0, p) for p in study.phantoms)
+    weakest = sorted(study.phantoms, key=lambda p: _fake_value(w0, p))[:2]
+    monkeypatch.setenv(FAIL_ENV, ",".join(f"{p.n_touches}:{p.index}" for p in weakest))
+    survivors = [p for p in study.phantoms if p not in weakest]
+    # averaged over its own successes, w = 0 would look better than w = 2 over all six: the bias at stake
+    assert statistics.mean(_fake_value(w0, p) for p in survivors) > statistics.mean(
+        _fake_value(w2, p) for p in study.phantoms)
+    res = run_sweep(study, fake_evaluate_fails_chosen, progress=False)
+    assert res.failed == 2
+    best = best_design(study, res.evaluations)
+    assert best["design"] == w2 and best["runner_up"] == w0 and best["paired_n"] == 4
+    assert best["paired_diff"] == pytest.approx(statistics.mean(
+        _fake_value(w2, p) - _fake_value(w0, p) for p in survivors), rel=1e-12)
+    summary = {r["width_mm"]: r for r in _read_csv(res.outputs["summary"])}
+    assert [(summary[w]["n"], summary[w]["n_ok"], summary[w]["failed"]) for w in ("0.0", "2.0")] == [
+        ("4", "4", "2"), ("4", "6", "0")]
+    for w, design in (("0.0", w0), ("2.0", w2)):  # both means over the same four phantoms
+        assert float(summary[w]["v_rel_mean"]) == pytest.approx(
+            statistics.mean(_fake_value(design, p) for p in survivors), rel=1e-12)
+    report = (study.out_dir / "report.txt").read_text()
+    assert "best design: width = 2 mm" in report
+    assert "compared on the 4 of 6 phantoms" in report and "2 excluded" in report
+    for p in weakest:
+        assert f"excluded phantom {p.index} ({p.n_touches} touches): failed for width = 0 mm: ConvergenceError" \
+            in report
+    assert len(_read_csv(res.outputs["excluded"])) == 2
+    compared = [(r["width_mm"], r["compared"]) for r in _read_csv(res.outputs["results"])]
+    assert sum(c == "True" for _, c in compared) == 8
+    # once the failures are retried successfully the full set is back and the stale list is gone
+    monkeypatch.delenv(FAIL_ENV)
+    again = run_sweep(study, fake_evaluate_fails_chosen, progress=False, retry_failed=True)
+    assert again.failed == 0 and "excluded" not in again.outputs and not (study.out_dir / "excluded.csv").exists()
+    assert "designs compared on all 6 phantoms" in again.report[-1]
+
+
+def test_a_design_that_failed_everything_is_not_compared(tmp_path, monkeypatch):
+    study = _study(tmp_path, n1=2, n2=1)
+    monkeypatch.setenv(FAIL_ENV, ",".join(f"{p.n_touches}:{p.index}" for p in study.phantoms))
+    res = run_sweep(study, fake_evaluate_fails_chosen, progress=False)
+    assert res.failed == 3
+    assert best_design(study, res.evaluations)["design"].width_mm == 2.0
+    assert "designs compared on all 3 phantoms" in "\n".join(res.report)
+    assert any(line.startswith("not compared: width = 0 mm: every phantom failed") for line in res.report)
+
+
 def test_model_bug_stops_sweep_keeping_stored_rows(tmp_path):
     study = _study(tmp_path, n1=3, n2=0)
     with pytest.raises(ModelBugError, match="TypeError: fake bug") as info:
