@@ -48,26 +48,39 @@ def _step_line(step) -> str:
 
 def run_optimize_command(args: argparse.Namespace) -> int:
 
-    from ..optimize import effective_bounds_text, load_optimization, run_optimization
+    from ..optimize import effective_bounds_text, load_categories, run_optimization
+    from ..optimize.categories import write_summary
 
-    opt = load_optimization(args.study, study_overrides(args))
+    runs = load_categories(args.study, study_overrides(args))
     check_parallel_args(args)
-    cfg, problem, study = opt.config, opt.problem, opt.study
     if args.dry_run:
-        print(f"{study.name}: maximize {cfg.objective.describe()} with {cfg.algorithm} over "
-              f"{effective_bounds_text(problem)}; start {dict(zip(problem.names, problem.start))}; "
-              f"{len(study.phantoms)} phantoms + {len(opt.probes)} probes per design; max_evals {cfg.max_evals}; "
-              f"model {study.settings.model}; mesh {study.settings.mesh.mesher} {study.settings.mesh.size_mm:g} mm; "
-              f"out {study.out_dir}")
-        for t in problem.folded:
-            print(f"bound tightened: {t}")
+        for run in runs:
+            opt = run.optimization
+            cfg, problem, study = opt.config, opt.problem, opt.study
+            head = f"[{run.label}] " if run.label else ""
+            print(f"{head}{study.name}: maximize {cfg.objective.describe()} with {cfg.algorithm} over "
+                  f"{effective_bounds_text(problem)}; start {dict(zip(problem.names, problem.start))}; "
+                  f"{len(study.phantoms)} phantoms + {len(opt.probes)} probes per design; max_evals "
+                  f"{cfg.max_evals}; model {study.settings.model}; mesh {study.settings.mesh.mesher} "
+                  f"{study.settings.mesh.size_mm:g} mm; out {study.out_dir}")
+            for t in problem.folded:
+                print(f"bound tightened: {t}")
         return 0
     callback = None if args.quiet else (lambda step: print(_step_line(step), flush=True))
-    result = run_optimization(opt, jobs=args.jobs, backend=args.backend, scheduler=args.scheduler,
-                              callback=callback)
-    print(f"{len(result.history)} calls, {result.computed} phantoms computed, {result.seconds:.1f} s")
-    for line in result.report:
-        print(line)
-    for name, path in result.outputs.items():
-        print(f"wrote {name}: {path}")
+    pairs = []
+    for run in runs:
+        if run.label:
+            print(f"== category {run.label} ==", flush=True)
+        result = run_optimization(run.optimization, jobs=args.jobs, backend=args.backend,
+                                  scheduler=args.scheduler, callback=callback)
+        print(f"{len(result.history)} calls, {result.computed} phantoms computed, {result.seconds:.1f} s")
+        for line in result.report:
+            print(line)
+        for name, path in result.outputs.items():
+            print(f"wrote {name}: {path}")
+        pairs.append((run, result))
+    if len(runs) > 1:
+        out = runs[0].optimization.study.out_dir.parent
+        for line in write_summary(pairs, out / "categories.csv"):
+            print(line)
     return 0

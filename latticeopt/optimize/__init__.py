@@ -32,7 +32,7 @@ time, so a resumed run with a time limit may get further than the interrupted on
 Modules: :mod:`.config` (the validated ``[optimize]`` table), :mod:`.problem` (bounds with the fabrication limits
 folded in, general constraints, start points), :mod:`.load` (reading a study file), :mod:`.driver` (nlopt,
 multi-start, history), :mod:`.run` (the store-backed objective, :func:`run_optimization`), :mod:`.report`
-(history CSV, plots, report).
+(history CSV, plots, report), :mod:`.categories` (an outer loop over layout families and rim layouts).
 """
 
 from .config import (
@@ -47,11 +47,11 @@ from .config import (
     Variable,
 )
 from .driver import RESULT_NAMES, Assessment, Optimum, StartResult, Step, minimize
-from .load import load_optimization, optimization_from_dict
+from .load import load_categories, load_optimization, optimization_from_dict
 from .problem import Optimization, Problem, effective_bounds_text
 from .run import OptimizationResult, assess_design, run_optimization
 
 __all__ = ["ALGORITHMS", "CONSTRAINED", "CONSTRAINT_METHODS", "CONTINUOUS_FIELDS", "LOCAL_ALGORITHMS", "RESULT_NAMES",
            "Assessment", "Constraints", "LinearConstraint", "OptimizationResult", "Optimization", "OptimizeConfig",
            "Optimum", "Problem", "StartResult", "Step", "Variable", "assess_design", "effective_bounds_text",
-           "load_optimization", "minimize", "optimization_from_dict", "run_optimization"]
+           "load_categories", "load_optimization", "minimize", "optimization_from_dict", "run_optimization"]

@@ -29,7 +29,7 @@ LOCAL_ALGORITHMS = tuple(a for a, kind in ALGORITHMS.items() if kind == "local")
 CONSTRAINT_METHODS = ("auto", "native", "auglag", "penalty")
 #: Design fields that may be optimization variables (``size_mm`` is excluded: the phantoms depend on it).
 CONTINUOUS_FIELDS = ("width_mm", "thickness_mm", "pitch_mm", "total_thickness_mm", "sealing_mm",
-                     "electrode_width_mm")
+                     "electrode_width_mm", "frame_mm")
 #: Strict inequalities of the design (``w < p``) are kept this far from equality (mm).
 STRICT_MARGIN_MM = 1e-3
 ROUND_DECIMALS = 6

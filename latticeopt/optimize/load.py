@@ -19,7 +19,7 @@ from ..touches import validate_touches
 from .config import CONTINUOUS_FIELDS, Constraints, OptimizeConfig, Variable
 from .problem import Optimization, Problem
 
-__all__ = ["load_optimization", "optimization_from_dict"]
+__all__ = ["load_categories", "load_optimization", "optimization_from_dict", "read_study_table"]
 
 _KEYS = ("algorithm", "local_algorithm", "objective", "quantile", "uniformity", "bootstrap", "constraints",
          "constraint_method", "penalty_weight", "max_evals", "max_time_s", "xtol_abs_mm", "xtol_rel", "ftol_abs",
@@ -147,8 +147,8 @@ def optimization_from_dict(raw: Mapping, *, source: str = "<dict>", overridden: 
     return Optimization(study=study, config=config, problem=problem, probes=probes)
 
 
-def load_optimization(path: str | Path, overrides: Sequence[str] = ()) -> Optimization:
-    """Read, override (``--set`` strings) and validate an optimization study file."""
+def read_study_table(path: str | Path, overrides: Sequence[str] = ()) -> tuple[dict, list[str]]:
+    """The TOML table of a study file with ``--set`` overrides applied, and the keys they set."""
     p = Path(path)
     try:
         raw = tomllib.loads(p.read_text())
@@ -156,5 +156,23 @@ def load_optimization(path: str | Path, overrides: Sequence[str] = ()) -> Optimi
         raise ParameterError("STUDY", "a readable TOML study file", f"{p} ({exc.strerror})") from None
     except tomllib.TOMLDecodeError as exc:
         raise ParameterError(str(p), "valid TOML", str(exc)) from None
-    raw, keys = apply_overrides(raw, overrides)
-    return optimization_from_dict(raw, source=str(p), overridden=keys, default_name=p.stem)
+    return apply_overrides(raw, overrides)
+
+
+def load_optimization(path: str | Path, overrides: Sequence[str] = ()) -> Optimization:
+    """Read, override (``--set`` strings) and validate an optimization study file (no categories)."""
+    raw, keys = read_study_table(path, overrides)
+    if isinstance(raw.get("optimize"), Mapping) and "categories" in raw["optimize"]:
+        raise ParameterError(f"{path}: optimize.categories", "no categories here: load the study with "
+                             "latticeopt.optimize.load_categories (one optimization per combination)",
+                             raw["optimize"]["categories"])
+    return optimization_from_dict(raw, source=str(path), overridden=keys, default_name=Path(path).stem)
+
+
+def load_categories(path: str | Path, overrides: Sequence[str] = ()):
+    """Read an optimization study: one :class:`~latticeopt.optimize.categories.CategoryRun` per combination of
+    its ``[optimize.categories]`` (a single run without them)."""
+    from .categories import categorical_optimizations
+
+    raw, keys = read_study_table(path, overrides)
+    return categorical_optimizations(raw, source=str(path), overridden=keys, default_name=Path(path).stem)

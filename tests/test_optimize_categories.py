@@ -1,0 +1,98 @@
+"""The categorical outer loop of the optimizer (layout family x rim) on a model with known optima."""
+
+from __future__ import annotations
+
+import csv
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from latticeopt.errors import ParameterError
+from latticeopt.optimize import load_categories, run_optimization
+
+TESTS = Path(__file__).resolve().parent
+#: Known optimum of each combination: the peak V_rel and the width where it lies.
+PEAK = {("square", "none"): (0.05, 4.0), ("square", "channel"): (0.03, 3.0),
+        ("hexagonal", "none"): (0.06, 2.5), ("hexagonal", "channel"): (0.02, 5.0)}
+
+
+def family_evaluate(design, phantom, settings) -> dict:
+    """TEST DOUBLE of the coupled model: V_rel = peak - 0.002 (w - w*)^2 per (pattern, rim)."""
+    peak, w_opt = PEAK[(design.pattern, design.rim)]
+    return {"v_rel": peak - 0.002 * (design.width_mm - w_opt) ** 2, "forces_N": [0.1] * phantom.n_touches,
+            "timings": {"double": 0.0}}
+
+
+STUDY = """
+name = "families"
+out = "{out}"
+jobs = 1
+[design]
+thickness_mm = 3.0
+[phantoms]
+seed = 3
+counts = {{ 1 = 2 }}
+[optimize]
+algorithm = "LN_BOBYQA"
+max_evals = 25
+xtol_abs_mm = 0.001
+[optimize.variables]
+width_mm = {{ lower = 1.0, upper = 6.0, start = 3.5 }}
+[optimize.categories]
+pattern = ["square", "hexagonal"]
+rim = ["none", "channel"]
+"""
+
+
+def _study(tmp_path: Path) -> Path:
+    p = tmp_path / "families.toml"
+    p.write_text(STUDY.format(out=(tmp_path / "out").as_posix()))
+    return p
+
+
+def test_every_combination_finds_its_own_optimum(tmp_path):
+    runs = load_categories(_study(tmp_path))
+    assert [dict(r.values) for r in runs] == [{"pattern": p, "rim": r} for p in ("square", "hexagonal")
+                                             for r in ("none", "channel")]
+    assert len({r.optimization.study.out_dir for r in runs}) == 4  # one store and report per combination
+    for run in runs:
+        res = run_optimization(run.optimization, family_evaluate, outputs=False)
+        peak, w_opt = PEAK[(dict(run.values)["pattern"], dict(run.values)["rim"])]
+        assert res.best.x["width_mm"] == pytest.approx(w_opt, abs=0.01)
+        assert res.best.score == pytest.approx(peak, abs=1e-6)
+
+
+def test_cli_ranks_the_combinations(tmp_path):
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(TESTS), os.environ.get("PYTHONPATH", "")])}
+    cmd = [sys.executable, "-m", "latticeopt", "optimize", str(_study(tmp_path)), "--quiet",
+           "--evaluate", "test_optimize_categories:family_evaluate"]
+    done = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    ranked = [line.split(":")[0].strip() for line in done.stdout.split("categories ranked")[1].splitlines()[1:]]
+    assert ranked == ["pattern-hexagonal_rim-none", "pattern-square_rim-none", "pattern-square_rim-channel",
+                      "pattern-hexagonal_rim-channel"]
+    with open(tmp_path / "out" / "categories.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert {r["category"] for r in rows} == set(ranked)
+
+
+@pytest.mark.parametrize("change, match", [
+    ('pattern = ["square", "round"]', "optimize.categories.pattern: expected a list of distinct values"),
+    ('colour = ["red"]', "optimize.categories.colour: expected a categorical design field"),
+    ('pattern = []', "optimize.categories.pattern"),
+])
+def test_bad_categories_are_rejected_naming_the_key(tmp_path, change, match):
+    p = _study(tmp_path)
+    p.write_text(p.read_text().replace('pattern = ["square", "hexagonal"]', change))
+    with pytest.raises(ParameterError, match=match):
+        load_categories(p)
+
+
+def test_a_category_fixed_in_the_design_is_rejected(tmp_path):
+    p = _study(tmp_path)
+    p.write_text(p.read_text().replace("thickness_mm = 3.0", 'thickness_mm = 3.0\nrim = "none"'))
+    with pytest.raises(ParameterError, match="optimize.categories.rim: expected a field not also fixed"):
+        load_categories(p)
