@@ -89,7 +89,7 @@ def results_rows(study: Study, evaluations: Sequence[Evaluation]) -> list[dict]:
     n = len(study.phantoms)
     rows = []
     for k, ((design, phantom), e) in enumerate(zip(study.tasks(), evaluations)):
-        row = {f: getattr(design, f) for f in study.grid_fields}
+        row = {f: _value(design, f) for f in study.grid_fields}
         row.update(phantom_index=phantom.index, n_touches=phantom.n_touches,
                    touches=json.dumps([[t.x_mm, t.y_mm, t.radius_mm, t.depth_mm] for t in phantom.touches]),
                    status=e.status, v_rel=e.v_rel, force_total_N=sum(e.forces_N) if e.forces_N else None,
@@ -114,7 +114,7 @@ def summarize(study: Study, evaluations: Sequence[Evaluation]) -> list[dict]:
         used = cmp["used"] if i in compared else []
         n_ok = sum(e.ok for e in rows)
         mean, se = _mean_se([rows[j].v_rel for j in used])
-        row = {f: getattr(design, f) for f in study.grid_fields}
+        row = {f: _value(design, f) for f in study.grid_fields}
         row.update(v_rel_mean=mean, v_rel_se=se, n=len(used), n_ok=n_ok, failed=len(rows) - n_ok)
         for k in counts:
             vals = [rows[j].v_rel for j in used if study.phantoms[j].n_touches == k]
@@ -159,10 +159,20 @@ def write_csv(path: Path, rows: Sequence[dict]) -> Path:
     return path
 
 
+def _value(design, field: str):
+    """A design's value of a study grid key: a field, the hydrogel fraction it was solved for, or (for a layout
+    file) its content hash."""
+    if field == "hydrogel_fraction":
+        return round(design.hydrogel_area_fraction(), 6)
+    if field == "layout":
+        return design.content_hash()[:8]
+    return getattr(design, field)
+
+
 def _label(design, fields) -> str:
     parts = []
     for f in fields:
-        val = getattr(design, f)
+        val = _value(design, f)
         if f.endswith("_mm"):
             parts.append(f"{f.removesuffix('_mm')} = {val:g} mm")
         else:
@@ -185,7 +195,7 @@ def plot_lines(study: Study, summary: Sequence[dict], path: Path) -> Path:
     ax = fig.add_subplot()
     lines: dict[tuple, list] = {}
     for design, s in zip(study.designs, summary):
-        lines.setdefault(tuple(getattr(design, f) for f in others), []).append((getattr(design, x_field), s, design))
+        lines.setdefault(tuple(_value(design, f) for f in others), []).append((_value(design, x_field), s, design))
     for _, pts in lines.items():
         pts.sort(key=lambda p: p[0])
         ax.errorbar([p[0] for p in pts], [p[1]["v_rel_mean"] for p in pts],
@@ -211,17 +221,17 @@ def plot_heatmap(study: Study, summary: Sequence[dict], path: Path) -> Path | No
     from matplotlib.figure import Figure
 
     x_field = _x_field(study)
-    (y_field, y_vals), = [(f, vals) for f, vals in varying if f != x_field]
-    x_vals = dict(varying)[x_field]
-    xs, ys = sorted(x_vals), sorted(y_vals)
+    y_field, = [f for f, _ in varying if f != x_field]
+    xs = sorted({_value(d, x_field) for d in study.designs})
+    ys = sorted({_value(d, y_field) for d in study.designs})
     grid = np.full((len(ys), len(xs)), np.nan)
     for design, s in zip(study.designs, summary):
-        grid[ys.index(getattr(design, y_field)), xs.index(getattr(design, x_field))] = s["v_rel_mean"]
+        grid[ys.index(_value(design, y_field)), xs.index(_value(design, x_field))] = s["v_rel_mean"]
     fig = Figure(figsize=(6.4, 4.6), layout="constrained")
     ax = fig.add_subplot()
     im = ax.imshow(grid, origin="lower", cmap="viridis", aspect="auto")
-    ax.set_xticks(range(len(xs)), [f"{x:g}" for x in xs])
-    ax.set_yticks(range(len(ys)), [f"{y:g}" for y in ys])
+    ax.set_xticks(range(len(xs)), [f"{x:g}" if isinstance(x, float) else str(x) for x in xs])
+    ax.set_yticks(range(len(ys)), [f"{y:g}" if isinstance(y, float) else str(y) for y in ys])
     ax.set_xlabel(x_field.replace("_mm", " (mm)"))
     ax.set_ylabel(y_field.replace("_mm", " (mm)"))
     finite = grid[np.isfinite(grid)]
@@ -242,7 +252,7 @@ def press_curves(study: Study, evaluations: Sequence[Evaluation]) -> list[dict]:
     rows = []
     for design, group in zip(study.designs, _by_design(study, evaluations)):
         for phantom, e in zip(study.phantoms, group):
-            row = {f: getattr(design, f) for f in study.grid_fields}
+            row = {f: _value(design, f) for f in study.grid_fields}
             row.update(depth_mm=phantom.touches[0].depth_mm, v_rel=e.v_rel,
                        force_N=e.forces_N[0] if e.forces_N else None, status=e.status,
                        design_key=e.design_key)
