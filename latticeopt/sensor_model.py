@@ -330,7 +330,8 @@ def load_sensor_model(path: str | Path) -> SensorModel:
 
 
 def _assemble(meta: dict, a: dict) -> SensorModel:
-    design = LatticeDesign(**meta["design"])
+    # Files written before layouts were a design parameter hold the square lattice with its rim channel.
+    design = LatticeDesign(**{"rim": "channel", **meta["design"]})
     protocol = Protocol.from_matrices(a["drive_currents"], a["measure"], a["row_drive"], meta["protocol"])
     n = int(meta["n_pixels"])
     nodes, tets = a["mesh_nodes_mm"], a["mesh_tets"]
