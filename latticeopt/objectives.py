@@ -23,6 +23,12 @@ for ``mean`` alone the usual ``std(ddof=1) / sqrt(n)``; otherwise a bootstrap ov
 probes resampled independently, a fixed seed, :attr:`Objective.bootstrap` resamples) — deterministic, so a
 resumed run reports the same numbers. Paired differences between two designs resample the *same* phantom
 indices for both, which is what common random numbers buy.
+
+Failed phantoms. A design is scored on *all* its phantoms or not at all: a failed phantom (NaN) makes the score
+NaN, which the optimizer treats as infeasible. Scoring a design on its successes only would compare designs over
+different phantom sets — a design whose hardest presses fail would be averaged over easier ones and could beat
+one that solved them — and an optimizer cannot use the sweep report's alternative (the phantoms every design
+solved), because that set shrinks as candidates arrive and would change the scores it has already compared.
 """
 
 from __future__ import annotations
@@ -54,7 +60,7 @@ class ObjectiveValue:
     Attributes
     ----------
     score
-        ``sum(weight * term)``; NaN when a needed term is undefined (no successful phantom).
+        ``sum(weight * term)``; NaN when a phantom failed or a needed term is undefined.
     se
         Standard error of the score over the phantoms.
     terms
@@ -169,11 +175,19 @@ class Objective:
         Parameters
         ----------
         random_v
-            V_rel of the successful random phantoms, shape ``(n,)``.
+            V_rel of every random phantom, shape ``(n,)``, NaN where a phantom failed.
         probe_v
-            V_rel of the successful probes, shape ``(m,)`` (only used by ``uniformity``).
+            V_rel of every probe, shape ``(m,)`` (only used by ``uniformity``), NaN where a probe failed.
+
+        Returns
+        -------
+        ObjectiveValue
+            NaN score, SE and terms when a phantom (or a probe the objective uses) failed: a design is scored on
+            every phantom or not at all (module docstring).
         """
         r, p = np.asarray(random_v, dtype=float), np.asarray(probe_v, dtype=float)
+        if not np.isfinite(r).all() or (self.needs_probes and not np.isfinite(p).all()):
+            return ObjectiveValue(math.nan, math.nan, {k: math.nan for k, _ in self.weights})
         terms = self._terms(r, p)
         score = self._score(terms)
         if not math.isfinite(score):

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from latticeopt.design import LatticeDesign
-from latticeopt.errors import LatticeoptError, ParameterError
+from latticeopt.errors import AllFailedError, ConvergenceError, FolderLockedError, LatticeoptError, ParameterError
 from latticeopt.objectives import Objective
 from latticeopt.optimize import (
     ALGORITHMS,
@@ -330,6 +330,68 @@ def test_hydrogel_stretch_constraint_through_the_store(tmp_path):
 
 def _no_stretch_evaluate(design, phantom, settings) -> dict:
     return {"v_rel": 0.01}
+
+
+FAIL_ENV = "LATTICEOPT_TEST_OPT_FAIL_PHANTOM"
+W_FAIL = 3.5
+
+
+def failing_evaluate(design, phantom, settings) -> dict:
+    """TEST DOUBLE: analytic_evaluate, but ConvergenceError for w > 3.5 on the phantom whose key is
+    ``$LATTICEOPT_TEST_OPT_FAIL_PHANTOM`` (``"*"``: every phantom of every design)."""
+    chosen = os.environ[FAIL_ENV]
+    if chosen == "*" or (design.width_mm > W_FAIL and phantom.key == chosen):
+        raise ConvergenceError("fake: the press was too hard")
+    return analytic_evaluate(design, phantom, settings)
+
+
+def test_a_failed_phantom_makes_a_design_infeasible(tmp_path, monkeypatch):
+    opt = load_optimization(_write(tmp_path))
+    phantoms = opt.study.phantoms
+    # the weakest phantom fails for w > 3.5, around the optimum w = 4.2: averaged over the others, those designs
+    # would score higher than the same design with every phantom, and higher than any design that solves all
+    weakest = min(phantoms, key=_phantom_factor)
+    monkeypatch.setenv(FAIL_ENV, weakest.key)
+    others = np.mean([_phantom_factor(p) for p in phantoms if p is not weakest])
+    assert _f(W_OPT, T_OPT) * others > _f(W_FAIL, T_OPT) * np.mean([_phantom_factor(p) for p in phantoms])
+    res = run_optimization(opt, failing_evaluate, outputs=False)
+    best = res.best
+    assert best.x["width_mm"] <= W_FAIL and best.assessment.n_failed == 0
+    assert best.score == pytest.approx(_f(best.x["width_mm"], best.x["thickness_mm"])
+                                       * np.mean([_phantom_factor(p) for p in phantoms]), rel=1e-12)
+    failing = [s for s in res.history if s.assessment is not None and s.assessment.n_failed]
+    assert failing and all(s.x["width_mm"] > W_FAIL for s in failing)
+    for s in failing:
+        assert not s.feasible and math.isnan(s.score) and "1 of 3 phantoms failed: infeasible" in s.note
+    assert math.isnan(Objective().evaluate([0.05, math.nan, 0.04]).score)
+
+
+def test_every_evaluation_failed_is_an_error(tmp_path, monkeypatch):
+    monkeypatch.setenv(FAIL_ENV, "*")
+    path = _write(tmp_path, max_evals=4)
+    with pytest.raises(AllFailedError, match="every one of the .* phantom evaluations .* failed") as info:
+        run_optimization(load_optimization(path), failing_evaluate)
+    assert info.value.result.best is None and "\n" not in str(info.value)
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(TESTS), os.environ.get("PYTHONPATH", "")])}
+    done = subprocess.run([sys.executable, "-m", "latticeopt", "optimize", str(path), "--evaluate",
+                           "test_optimize:failing_evaluate", "--quiet"], env=env, capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode == 1 and done.stderr.count("\n") == 1 and "Traceback" not in done.stderr, done.stderr
+
+
+def test_optimization_refuses_a_locked_folder(tmp_path):
+    path = _write(tmp_path)
+    holder = subprocess.Popen([sys.executable, "-c", "import sys\nfrom latticeopt.store import folder_lock\n"
+                               "with folder_lock(sys.argv[1]):\n    print('locked', flush=True)\n    sys.stdin.read()",
+                               str(tmp_path / "out")], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "locked"
+        with pytest.raises(FolderLockedError, match=f"PID {holder.pid}"):
+            run_optimization(load_optimization(path), analytic_evaluate)
+    finally:
+        holder.communicate("", timeout=30)
+    with ResultStore(tmp_path / "out") as store:
+        assert len(store) == 0
 
 
 def test_stretch_constraint_needs_the_model_to_report_it(tmp_path):

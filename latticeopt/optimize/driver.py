@@ -30,8 +30,8 @@ class Assessment:
     """What one design scored (the optimizer's view of an evaluation).
 
     ``random_v``/``probe_v`` hold V_rel per phantom in phantom order (NaN where a phantom failed); ``score`` is
-    NaN when the design could not be scored. ``computed`` counts phantoms computed now (the rest came from the
-    store).
+    NaN when the design could not be scored, which includes any failed phantom (infeasible). ``computed``
+    counts phantoms computed now (the rest came from the store).
     """
 
     score: float
@@ -146,7 +146,15 @@ class _Driver:
                         default=0.0)
             f = max(0.0, worst) + 1.0 + viol
         feasible = scored and all(math.isfinite(val) and val <= 1e-9 for val in g.values())
-        note = "" if scored else ("design cannot be built" if a is None else "no successful phantom")
+        if scored:
+            note = ""
+        elif a is None:
+            note = "design cannot be built"
+        elif a.n_failed:
+            note = (f"{a.n_failed} of {a.n_ok + a.n_failed} phantoms failed: infeasible (a design is scored on "
+                    "every phantom or not at all)")
+        else:
+            note = "score undefined"
         step = Step(index=len(self.history) + 1, start=self.start, x=dict(zip(self.problem.names, x.tolist())),
                     f=float(f), constraints=g, feasible=feasible, repeat=repeat, assessment=a, note=note)
         self.history.append(step)

@@ -173,7 +173,8 @@ def report_lines(result) -> list[str]:
              f"calls, "
              f"{len(fresh)} designs x {n_ph} phantoms: {result.computed} phantoms computed, "
              f"{len(fresh) * n_ph - result.computed} read from the store; "
-             f"{sum(s.assessment.n_failed for s in fresh)} phantoms failed (left out of every statistic)",
+             f"{sum(s.assessment.n_failed for s in fresh)} phantoms failed (a design with a failed phantom is "
+             f"infeasible: {sum(s.assessment.n_failed > 0 for s in fresh)} designs)",
              f"objective: maximize {obj.describe()}; effective bounds {effective_bounds_text(opt.problem)}"]
     lines += [f"bound tightened: {t}" for t in opt.problem.folded]
     if opt.problem.general or opt.config.constraints.max_hydrogel_stretch is not None:
@@ -181,10 +182,13 @@ def report_lines(result) -> list[str]:
 
     def describe(s) -> str:
         a = s.assessment
+        failed = (f"; {a.n_failed} phantoms failed, so infeasible (the mean is over the {a.n_ok} others)"
+                  if a.n_failed else "")
         if obj.weights == (("mean", 1.0),):
-            return f"{_fmt_x(s.x)}: mean V_rel {a.v_rel_mean:.5g} ± {a.v_rel_se:.2g} (SE over phantoms, n = {a.n_ok})"
+            return (f"{_fmt_x(s.x)}: mean V_rel {a.v_rel_mean:.5g} ± {a.v_rel_se:.2g} (SE over phantoms, "
+                    f"n = {a.n_ok}{failed})")
         return (f"{_fmt_x(s.x)}: score {s.score:.5g} ± {s.se:.2g}, mean V_rel {a.v_rel_mean:.5g} ± {a.v_rel_se:.2g} "
-                f"(SE over phantoms, n = {a.n_ok})")
+                f"(SE over phantoms, n = {a.n_ok}{failed})")
 
     if result.optimum.start_step is not None and result.optimum.start_step.assessment is not None:
         lines.append("start:   " + describe(result.optimum.start_step))
@@ -194,7 +198,10 @@ def report_lines(result) -> list[str]:
         lines.append(f"optimum: {describe(result.best)} at call {result.best.index}")
         if result.paired is not None:
             d, se = result.paired
-            lines.append(f"improvement over the start: {d:+.5g} ± {se:.2g} (paired SE over the common phantoms; "
+            start = result.optimum.start_step.assessment
+            common = (f"the phantoms the start solved ({start.n_failed} failed for it)" if start.n_failed
+                      else "the common phantoms")
+            lines.append(f"improvement over the start: {d:+.5g} ± {se:.2g} (paired SE over {common}; "
                          "the SEs above are not independent, every design sees the same phantoms)")
         active = [k for k, g in result.best.constraints.items() if g > -1e-3]
         if active:

@@ -13,9 +13,10 @@ from pathlib import Path
 import numpy as np
 
 from ..design import LatticeDesign
-from ..errors import LatticeoptError, ParameterError
+from ..errors import AllFailedError, LatticeoptError, ParameterError
 from ..objectives import Objective
 from ..phantoms import Phantom
+from ..store import folder_lock
 from ..study import EvalSettings
 from .driver import Assessment, Optimum, Step, minimize
 from .problem import Optimization
@@ -36,8 +37,9 @@ def assess_design(design: LatticeDesign, *, phantoms: Sequence[Phantom], probes:
     """Evaluate ``design`` on every phantom (and probe) through the store and score it.
 
     Phantoms already stored under ``settings.key`` are read, the rest computed (``jobs`` in parallel) and
-    stored as they finish (:func:`latticeopt.sweep.evaluate_designs`). Failed phantoms are left out of every
-    statistic and counted in ``n_failed``.
+    stored as they finish (:func:`latticeopt.sweep.evaluate_designs`). A failed phantom makes the score NaN
+    (the design is infeasible, :mod:`latticeopt.objectives`); ``n_failed`` counts them, and ``v_rel_mean`` /
+    ``max_stretch`` describe the successful ones only (for the history, never for ranking).
     """
     from ..sweep import evaluate_designs
 
@@ -47,7 +49,7 @@ def assess_design(design: LatticeDesign, *, phantoms: Sequence[Phantom], probes:
     n = len(phantoms)
     vals = [e.v_rel if e.ok else math.nan for e in evs]
     rnd, prb = np.asarray(vals[:n]), np.asarray(vals[n:])
-    value = objective.evaluate(rnd[np.isfinite(rnd)], prb[np.isfinite(prb)])
+    value = objective.evaluate(rnd, prb)  # NaN (infeasible) if any phantom failed
     mean, se = _mean_se(rnd[np.isfinite(rnd)])
     stretch = None
     if need_stretch:
@@ -147,8 +149,9 @@ def run_optimization(opt: Optimization, evaluate: Callable | None = None, *, job
         settings = replace(settings, model=f"{evaluate.__module__}:{evaluate.__qualname__}")
     out = Path(study.out_dir if out_dir is None else out_dir)
     jobs = study.jobs if jobs is None else jobs
-    out.mkdir(parents=True, exist_ok=True)
     with contextlib.ExitStack() as stack:
+        # one run per folder for the whole optimization (the sweep engine re-enters the same lock per design)
+        stack.enter_context(folder_lock(out))
         if backend == "dask":  # one cluster connection for the whole run, not one per candidate design
             scheduler = stack.enter_context(_dask_client(scheduler, jobs))
         assess = functools.partial(
@@ -169,6 +172,13 @@ def run_optimization(opt: Optimization, evaluate: Callable | None = None, *, job
     if outputs:
         from .report import write_optimization_outputs
 
-        files, lines = write_optimization_outputs(result)
+        with folder_lock(out):
+            files, lines = write_optimization_outputs(result)
         result = replace(result, outputs=files, report=tuple(lines))
+    assessed = [s.assessment for s in optimum.history if s.assessment is not None]
+    if assessed and not any(a.n_ok for a in assessed):
+        n = sum(a.n_failed for a in assessed)
+        raise AllFailedError(f"every one of the {n} phantom evaluations of the {len(assessed)} designs assessed "
+                             f"failed, so there is nothing to optimize; the errors are in {out / 'results.sqlite'}"
+                             " (sweep the start design to see them in results.csv)", result)
     return result
