@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from latticeopt.design import REGION_IDS, LatticeDesign
 from latticeopt.errors import ParameterError
+from latticeopt.layout import electrode_contact_mm
 from latticeopt.mesh import MeshSettings, TetMesh, electrode_name, mesh_design, mesh_key
 from latticeopt.mesh import grid as grid_module
 from latticeopt.mesh.facets import boundary_faces, tag_facets
@@ -22,6 +24,12 @@ DESIGNS = [
     LatticeDesign(width_mm=6.0, thickness_mm=7.0),  # no substrate
     LatticeDesign(width_mm=5.0, thickness_mm=2.5, pitch_mm=30.0, electrode_width_mm=6.0),
 ]
+
+
+def _contact_mm(d: LatticeDesign) -> np.ndarray:
+    """Length of each electrode's side-wall segment that lies on hydrogel (mm), shape ``(16,)``: with
+    ``rim = "none"`` a channel narrower than an electrode covers only part of it."""
+    return electrode_contact_mm(d.footprint(), d.electrodes())
 
 
 def _ids(d: LatticeDesign) -> str:
@@ -67,11 +75,10 @@ def test_tets_positive_and_labels_match_centroids(design_mesh):
     assert np.array_equal(mesh.region, d.region_at(mesh.nodes_mm[mesh.tets].mean(axis=1)))
 
 
-def test_electrode_areas_are_width_times_thickness(design_mesh):
+def test_electrode_areas_are_contact_length_times_thickness(design_mesh):
     d, mesh = design_mesh
     assert mesh.n_electrodes == d.n_electrodes
-    assert mesh.electrode_areas_mm2() == pytest.approx(np.full(16, d.electrode_width_mm * d.thickness_mm),
-                                                        rel=1e-12)
+    assert mesh.electrode_areas_mm2() == pytest.approx(_contact_mm(d) * d.thickness_mm, rel=1e-12)
     assert not mesh.facet_weights  # conforming mesh: every electrode triangle fully covered
 
 
@@ -95,14 +102,16 @@ def test_electrode_patches_sit_on_their_wall_in_numbering_order(design_mesh):
         assert np.allclose(p[:, :, normal_axis], cx if nx else cy)  # on the wall
         assert np.allclose(_normals(mesh.nodes_mm, tri)[:, :2], [nx, ny])  # facing out
         t = p[:, :, int(axis)]
-        assert t.min() == pytest.approx((cx if axis == 0 else cy) - width / 2)
-        assert t.max() == pytest.approx((cx if axis == 0 else cy) + width / 2)
+        assert t.min() >= (cx if axis == 0 else cy) - width / 2 - 1e-9
+        assert t.max() <= (cx if axis == 0 else cy) + width / 2 + 1e-9
         assert p[:, :, 2].min() == pytest.approx(z0) and p[:, :, 2].max() == pytest.approx(z1)
         assert np.all(np.isin(tri, gel_nodes))  # on the hydrogel
-    # Patch centroids (area-weighted) are the electrode centres, counter-clockwise from y = 0, smallest x.
+    # Patch centroids (area-weighted) are the electrode centres (where the gel covers the whole electrode,
+    # else the contact's centre), counter-clockwise from y = 0, smallest x.
     cent = np.array([triangle_areas(mesh.nodes_mm, tri) @ mesh.nodes_mm[tri].mean(axis=1)
                      / triangle_areas(mesh.nodes_mm, tri).sum() for tri in mesh.electrode_facets()])
-    assert cent == pytest.approx(d.electrodes()[:, :3])
+    full = np.isclose(_contact_mm(d), d.electrode_width_mm)
+    assert cent[full] == pytest.approx(d.electrodes()[full, :3])
     angle = np.unwrap(np.arctan2(cent[:, 1] - 50, cent[:, 0] - 50))
     assert np.all(np.diff(angle) > 0) and angle[-1] - angle[0] < 2 * np.pi
 
@@ -205,7 +214,7 @@ def test_facets_found_with_tolerance_on_a_perturbed_mesh():
 @pytest.mark.parametrize("width", [3.3, 2.0, 5.7])
 def test_fractional_coverage_gives_exact_areas_on_non_conforming_triangles(width):
     """A mesh whose triangles do not follow the electrode outline still reports width x t exactly."""
-    d = LatticeDesign()
+    d = LatticeDesign(rim="channel")  # the rim channel covers every electrode, whatever its width
     mesh = grid_mesh(d, 4.0)  # grid lines at the 4 mm electrode edges, not at the new ones
     other = d.replace(electrode_width_mm=width)
     facets, weights = tag_facets(mesh.nodes_mm, mesh.tets, mesh.region, other, tol_mm=1e-6)
@@ -220,7 +229,8 @@ def test_fractional_coverage_gives_exact_areas_on_non_conforming_triangles(width
 
 @pytest.fixture(scope="module")
 def mesh4():
-    return grid_mesh(LatticeDesign(), 4.0)
+    # rim channel: gel volume t L^2 (1 - (1 - w/p)^2) = 16128 mm^3, every electrode wholly on gel
+    return grid_mesh(LatticeDesign(rim="channel"), 4.0)
 
 
 def test_arrays_are_read_only(mesh4):
@@ -317,7 +327,8 @@ def test_vtu_round_trip_keeps_regions_and_electrodes(mesh4, tmp_path):
 # -- settings and cache ----------------------------------------------------------------------------------------
 
 def test_mesh_settings_validation():
-    with pytest.raises(ParameterError, match=r"mesher: expected one of 'grid', 'tetwild', got 'gmsh'"):
+    with pytest.raises(ParameterError,
+                       match=r"mesher: expected one of 'auto', 'grid', 'extruded', 'tetwild', got 'gmsh'"):
         MeshSettings(mesher="gmsh")
     with pytest.raises(ParameterError, match="size_mm"):
         MeshSettings(size_mm=0.0)
@@ -336,11 +347,22 @@ def test_cache_key_follows_what_determines_the_mesh():
     assert mesh_key(d, dataclasses.replace(s, size_mm=3.0)) != key
     assert mesh_key(d, dataclasses.replace(s, channel_cells=3)) != key
     assert mesh_key(d, dataclasses.replace(s, mesher="tetwild")) != key
-    # Settings a mesher ignores do not split its cache.
-    assert mesh_key(d, dataclasses.replace(s, epsilon_rel=1e-4)) == key
-    tw = MeshSettings(mesher="tetwild", size_mm=4.0)
-    assert mesh_key(d, dataclasses.replace(tw, layer_cells=5)) == mesh_key(d, tw)
-    assert mesh_key(d, dataclasses.replace(tw, epsilon_rel=1e-4)) != mesh_key(d, tw)
+    assert mesh_key(d, dataclasses.replace(s, mesher="extruded")) != key
+    # Every field of the resolved settings counts, even one this mesher ignores (a changed default is then
+    # never silently reused); "auto" keys as the mesher it picks.
+    assert mesh_key(d, dataclasses.replace(s, epsilon_rel=1e-4)) != key
+    assert mesh_key(d, dataclasses.replace(s, mesher="grid")) == key
+    hexa = LatticeDesign(pattern="hexagonal", width_mm=3.0)
+    assert mesh_key(hexa, s) == mesh_key(hexa, dataclasses.replace(s, mesher="extruded"))
+    # the package version: a new release rebuilds its meshes
+    import latticeopt
+
+    old = latticeopt.__version__
+    try:
+        latticeopt.__version__ = old + ".post1"
+        assert mesh_key(d, s) != key
+    finally:
+        latticeopt.__version__ = old
 
 
 def test_second_request_is_a_file_read(tmp_path, monkeypatch):
@@ -388,6 +410,17 @@ def test_cache_location_and_disabling(tmp_path, monkeypatch):
     assert m.info["cached"] is False
     assert len(list((tmp_path / "env-cache").glob("*.npz"))) == 1
     assert not (tmp_path / "meshes").exists()
+
+
+def test_default_cache_folder_is_the_user_cache(monkeypatch):
+    import platformdirs
+
+    from latticeopt.mesh import default_cache_dir
+
+    monkeypatch.delenv("LATTICEOPT_MESH_CACHE", raising=False)
+    assert default_cache_dir() == Path(platformdirs.user_cache_dir("latticeopt")) / "meshes"
+    monkeypatch.setenv("LATTICEOPT_MESH_CACHE", "/some/where")
+    assert default_cache_dir() == Path("/some/where")
 
 
 def test_concurrent_builders_of_one_mesh_do_not_collide(tmp_path):
@@ -438,5 +471,5 @@ def test_grid_without_electrode_edges_weights_give_the_exact_electrode_areas(wid
         name = electrode_name(k + 1)
         tri = mesh.facets[name]
         areas.append(float(np.sum(triangle_areas(mesh.nodes_mm, tri) * mesh.weights(name))))
-    # t high, electrode_width wide, whichever grid lines the electrode's edges fall between
-    np.testing.assert_allclose(areas, d.thickness_mm * d.electrode_width_mm, rtol=1e-9)
+    # t high, as wide as the electrode's contact with the gel, whichever grid lines its edges fall between
+    np.testing.assert_allclose(areas, d.thickness_mm * _contact_mm(d), rtol=1e-9)

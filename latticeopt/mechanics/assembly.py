@@ -63,28 +63,34 @@ def reference_gradients(nodes: np.ndarray, tets: np.ndarray) -> tuple[np.ndarray
 
 
 def dilatation_patches(mesh: TetMesh, volumetric: str = "patch") -> np.ndarray:
-    """Patch index of every tet, shape ``(M,)``; patches never mix regions.
+    """Patch index of every tet, shape ``(M,)``, numbered ``0 .. P-1``; patches never mix regions.
 
-    ``"patch"``: on a tensor-product node set (the grid mesher) the hexahedral cell holding each tet's
-    centroid; on other meshes (tetwild) the cell of a virtual grid with about six tets per cell, split by
-    region (a heuristic: the grid mesher is the verified path). ``"element"``: every tet alone.
+    ``"patch"``: the mesher's own cells when the mesh carries them (:attr:`TetMesh.cells`: the grid mesher's
+    hexahedra, the extruded mesher's pairs of prisms in one z layer), split by region. Without them: on a
+    tensor-product node set (a block mesh) the hexahedral cell holding each tet's centroid; on other meshes
+    the cell of a virtual grid with about six tets per cell, split by region (a heuristic, what tetwild
+    meshes get). ``"element"``: every tet alone.
     """
     M = mesh.n_tets
     if volumetric == "element":
         return np.arange(M)
-    nodes = mesh.nodes_mm
-    cent = nodes[mesh.tets].mean(axis=1)
-    axes = [np.unique(np.round(nodes[:, i], 9)) for i in range(3)]
-    if np.prod([len(a) for a in axes]) == mesh.n_nodes:
-        edges = axes  # tensor grid: cells are exactly the hexahedra
+    if mesh.cells is not None:
+        cell = mesh.cells
     else:
-        lo, hi = nodes.min(axis=0), nodes.max(axis=0)
-        step = (6.0 * np.abs(mesh.tet_volumes_mm3()).mean()) ** (1.0 / 3.0)
-        edges = [np.linspace(lo[i], hi[i], max(int(np.ceil((hi[i] - lo[i]) / step)), 1) + 1) for i in range(3)]
-    cell = np.zeros(M, dtype=np.int64)
-    for i in range(3):
-        k = np.clip(np.searchsorted(edges[i], cent[:, i]) - 1, 0, len(edges[i]) - 2)
-        cell = cell * (len(edges[i]) - 1) + k
+        nodes = mesh.nodes_mm
+        cent = nodes[mesh.tets].mean(axis=1)
+        axes = [np.unique(np.round(nodes[:, i], 9)) for i in range(3)]
+        if np.prod([len(a) for a in axes]) == mesh.n_nodes:
+            edges = axes  # tensor grid: cells are exactly the hexahedra
+        else:
+            lo, hi = nodes.min(axis=0), nodes.max(axis=0)
+            step = (6.0 * np.abs(mesh.tet_volumes_mm3()).mean()) ** (1.0 / 3.0)
+            edges = [np.linspace(lo[i], hi[i], max(int(np.ceil((hi[i] - lo[i]) / step)), 1) + 1)
+                     for i in range(3)]
+        cell = np.zeros(M, dtype=np.int64)
+        for i in range(3):
+            k = np.clip(np.searchsorted(edges[i], cent[:, i]) - 1, 0, len(edges[i]) - 2)
+            cell = cell * (len(edges[i]) - 1) + k
     key = cell * 256 + mesh.region.astype(np.int64)
     _, patch = np.unique(key, return_inverse=True)
     return patch.ravel()

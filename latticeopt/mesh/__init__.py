@@ -1,13 +1,13 @@
-"""Meshing: one interface over two meshers, with an on-disk cache keyed by content hash.
+"""Meshing: one interface over three meshers, with an on-disk cache keyed by content hash.
 
 >>> from latticeopt import LatticeDesign, MeshSettings, mesh_design
 >>> mesh = mesh_design(LatticeDesign(width_mm=4, thickness_mm=3), MeshSettings(size_mm=3))  # doctest: +SKIP
 
-Default mesher for the square lattice: ``grid`` (structured, conforming). Measured in
-``benchmarks/bench_mesh.py`` (README table): at equal node count it is about 300x faster than tetwild, its
-region volumes and electrode areas are exact rather than within the envelope, and it is deterministic, so
-cached and fresh meshes agree bit for bit and a sweep repeats exactly. ``tetwild`` stays for patterns that
-are not axis-aligned and as an independent cross-check.
+``mesher = "auto"`` (default) takes ``grid`` (structured, conforming) for an axis-aligned layout and
+``extruded`` (a conforming 2D triangulation extruded into prisms, :mod:`latticeopt.mesh.extruded`) for any
+other. Both are exact (region volumes and electrode areas) and deterministic, so cached and fresh meshes
+agree bit for bit and a sweep repeats exactly; measured in ``benchmarks/bench_mesh.py`` they are hundreds of
+times faster than ``tetwild`` (fTetWild), which stays as an independent cross-check.
 """
 
 from __future__ import annotations
@@ -31,11 +31,9 @@ __all__ = ["MESHERS", "MeshSettings", "TetMesh", "electrode_name", "mesh_design"
 
 log = logging.getLogger(__name__)
 
-MESHERS = ("grid", "tetwild")
+MESHERS = ("auto", "grid", "extruded", "tetwild")
 #: Grid cell-count rules (:func:`latticeopt.mesh.grid.grid_coordinates`).
 CELL_COUNTS = ("size", "fixed")
-#: Bump when a mesher's output changes for the same inputs, so stale cache entries are not reused.
-MESHER_REVISION = {"grid": 3, "tetwild": 1}
 
 
 @dataclass(frozen=True)
@@ -45,29 +43,32 @@ class MeshSettings:
     Parameters
     ----------
     mesher
-        ``"grid"`` (structured, exact, default) or ``"tetwild"`` (fTetWild via pytetwild).
+        ``"auto"`` (default: ``"grid"`` for an axis-aligned layout, else ``"extruded"``; see :meth:`resolved`),
+        ``"grid"`` (structured, exact; axis-aligned layouts only), ``"extruded"`` (2D triangulation extruded
+        into prisms, exact, every layout) or ``"tetwild"`` (fTetWild via pytetwild).
     size_mm
-        Target edge length (mm): the largest grid cell, or tetwild's absolute ideal edge length.
+        Target edge length (mm): the largest grid cell, the extruded mesher's triangle edge and z cell, or
+        tetwild's absolute ideal edge length.
     channel_cells
-        Grid: minimum cells across a channel.
+        Grid and extruded: minimum cells (triangles) across a channel.
     layer_cells
-        Grid: minimum cells through the conductive layer.
+        Grid and extruded: minimum cells through the conductive layer.
     epsilon_rel
         Tetwild: envelope size relative to the bounding-box diagonal (fTetWild's ``-e``); its surfaces lie
         within this distance of the input.
     cell_counts
         Grid: ``"size"`` (default: ``ceil(length / size_mm)`` cells per interval, so counts jump as ``w`` and
         ``t`` move) or ``"fixed"`` (counts independent of ``w`` and ``t``, for smooth objectives in an optimizer;
-        exactly ``channel_cells`` across channels and ``layer_cells`` through the layer). Left out of
-        :meth:`as_dict` at its default, so existing settings keys and mesh cache keys do not change.
+        exactly ``channel_cells`` across channels and ``layer_cells`` through the layer); the extruded mesher
+        applies it to its z levels only. Left out of :meth:`as_dict` at its default.
     electrode_edges
-        Grid: put grid lines on the electrode edges (default: every electrode triangle fully covered). False
-        leaves them out (``cell_counts="size"`` only): those lines cross the whole sensor, up to 22 % of the
-        nodes, and the triangles an electrode edge cuts enter the electrode with their covered fraction. Left
-        out of :meth:`as_dict` at its default.
+        Grid and extruded: put grid lines (2D graph points) on the electrode edges (default: every electrode
+        triangle fully covered). False leaves them out (``cell_counts="size"`` only): on the grid those lines
+        cross the whole sensor, up to 22 % of the nodes, and the triangles an electrode edge cuts enter the
+        electrode with their covered fraction. Left out of :meth:`as_dict` at its default.
     """
 
-    mesher: str = "grid"
+    mesher: str = "auto"
     size_mm: float = 2.0
     channel_cells: int = 2
     layer_cells: int = 2
@@ -84,9 +85,19 @@ class MeshSettings:
         object.__setattr__(self, "cell_counts", v.choice("cell_counts", self.cell_counts, CELL_COUNTS))
         if self.electrode_edges not in (True, False):
             raise ParameterError("electrode_edges", "true or false", self.electrode_edges)
-        if not self.electrode_edges and (self.mesher != "grid" or self.cell_counts != "size"):
-            raise ParameterError("electrode_edges", "true unless mesher = 'grid' and cell_counts = 'size'",
-                                 self.electrode_edges)
+        if not self.electrode_edges and (self.mesher == "tetwild" or self.cell_counts != "size"):
+            raise ParameterError("electrode_edges", "true unless mesher is 'auto', 'grid' or 'extruded' and "
+                                 "cell_counts = 'size'", self.electrode_edges)
+
+    def resolved(self, design: LatticeDesign) -> MeshSettings:
+        """These settings with ``mesher = "auto"`` replaced by the mesher it picks for ``design``.
+
+        ``"grid"`` when the layout is axis-aligned (:attr:`LatticeDesign.is_axis_aligned`), else
+        ``"extruded"``; any other mesher is returned unchanged.
+        """
+        if self.mesher != "auto":
+            return self
+        return dataclasses.replace(self, mesher="grid" if design.is_axis_aligned else "extruded")
 
     def as_dict(self) -> dict:
         out = dataclasses.asdict(self)
@@ -98,22 +109,27 @@ class MeshSettings:
 
 
 def default_cache_dir() -> Path:
-    """``$LATTICEOPT_MESH_CACHE`` if set, else ``./meshes``."""
-    return Path(os.environ.get("LATTICEOPT_MESH_CACHE", "meshes"))
+    """``$LATTICEOPT_MESH_CACHE`` if set, else the user cache folder: ``platformdirs.user_cache_dir("latticeopt")
+    / "meshes"`` (``~/.cache/latticeopt/meshes`` on Linux), so runs from any working directory share it."""
+    env = os.environ.get("LATTICEOPT_MESH_CACHE")
+    if env:
+        return Path(env)
+    import platformdirs
+
+    return Path(platformdirs.user_cache_dir("latticeopt")) / "meshes"
 
 
 def mesh_key(design: LatticeDesign, settings: MeshSettings) -> str:
-    """Content hash of everything that determines the mesh."""
-    relevant = settings.as_dict()
-    if settings.mesher == "grid":
-        relevant.pop("epsilon_rel")
-    else:
-        relevant.pop("channel_cells")
-        relevant.pop("layer_cells")
-        relevant.pop("cell_counts", None)
-        relevant.pop("electrode_edges", None)
-    payload = {"design": design.as_dict(), "settings": relevant, "format": FORMAT_VERSION,
-               "revision": MESHER_REVISION[settings.mesher]}
+    """Content hash of everything that determines the mesh.
+
+    The design's fields, every field of the *resolved* settings (``"auto"`` replaced by the mesher it picks,
+    options a mesher ignores included), the mesh file format and the package version: a new version
+    rebuilds its meshes rather than trusting a hand-kept revision number.
+    """
+    from .. import __version__  # read at call time: the package imports this module before defining it
+
+    payload = {"design": design.as_dict(), "settings": dataclasses.asdict(settings.resolved(design)),
+               "format": FORMAT_VERSION, "version": __version__}
     return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()
 
 
@@ -123,6 +139,11 @@ def _build(design: LatticeDesign, settings: MeshSettings) -> TetMesh:
 
         return grid_mesh(design, settings.size_mm, settings.channel_cells, settings.layer_cells, settings.cell_counts,
                          settings.electrode_edges)
+    if settings.mesher == "extruded":
+        from .extruded import extruded_mesh
+
+        return extruded_mesh(design, settings.size_mm, settings.channel_cells, settings.layer_cells,
+                             settings.cell_counts, settings.electrode_edges)
     from .tetwild import tetwild_mesh
 
     return tetwild_mesh(design, settings.size_mm, settings.epsilon_rel)
@@ -137,16 +158,21 @@ def mesh_design(design: LatticeDesign, settings: MeshSettings | None = None,
     design
         The sensor design.
     settings
-        Mesher and sizes; defaults to :class:`MeshSettings()`.
+        Mesher and sizes; defaults to :class:`MeshSettings()`. ``"auto"`` is resolved for ``design``; the
+        grid mesher refuses a layout that is not axis-aligned (:class:`ParameterError` naming ``mesher``).
     cache_dir
         Folder of the cache; ``None`` uses :func:`default_cache_dir`, ``False`` disables caching.
 
     Returns
     -------
     TetMesh
-        ``info`` holds the mesher, settings, key, build seconds and whether it came from the cache.
+        ``info`` holds the (resolved) mesher, settings, key, build seconds and whether it came from the cache.
     """
-    settings = settings or MeshSettings()
+    settings = (settings or MeshSettings()).resolved(design)
+    if settings.mesher == "grid":  # before any work (a cache look-up included)
+        from .grid import require_axis_aligned
+
+        require_axis_aligned(design)
     key = mesh_key(design, settings)
     path = None
     if cache_dir is not False:

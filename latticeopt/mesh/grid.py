@@ -1,6 +1,7 @@
-"""Structured conforming tet mesher for axis-aligned patterns.
+"""Structured conforming tet mesher for axis-aligned layouts.
 
-Grid lines sit on every channel edge, electrode edge and layer interface, so region volumes and electrode
+Grid lines sit on every x (y) coordinate of the hydrogel footprint's vertices (channel edges, frame, rim
+band, electrode leads), on every electrode edge and on every layer interface, so region volumes and electrode
 areas are exact; each interval between two such lines is split into equal cells no longer than the target
 size, with a minimum number of cells across every channel and through the conductive layer (the grading).
 Every hexahedral cell is split into six tets along its main diagonal (Kuhn / Freudenthal split), which is
@@ -13,9 +14,60 @@ from itertools import permutations
 
 import numpy as np
 
+from .. import layout as _layout
 from ..design import LatticeDesign
+from ..errors import ParameterError
 from .facets import tag_facets
 from .tetmesh import TetMesh, tet_volumes
+
+
+def require_axis_aligned(design: LatticeDesign) -> None:
+    """Raise a one-line :class:`ParameterError` naming ``mesher`` unless every layout edge is parallel to x or y."""
+    if not design.is_axis_aligned:
+        raise ParameterError("mesher", "'extruded' (or 'auto') for a layout with edges not parallel to x or y "
+                             f"(pattern {design.pattern!r}); the grid mesher needs an axis-aligned layout", "grid")
+
+
+def footprint_coordinates(design: LatticeDesign, axis: int) -> np.ndarray:
+    """Every distinct ``axis`` coordinate (0: x, 1: y) of the hydrogel footprint's vertices (mm), sorted."""
+    import shapely
+
+    if not design.has_lattice or design.footprint().is_empty:
+        return np.zeros(0)
+    coords = shapely.get_coordinates(design.footprint())
+    return np.unique(np.round(coords[:, axis], 9))
+
+
+def channel_intervals(design: LatticeDesign, axis: int) -> np.ndarray:
+    """Hydrogel channels crossing the ``axis`` direction, as merged intervals of that coordinate, shape ``(k, 2)``.
+
+    The square lattice's channel lines (:meth:`LatticeDesign.channel_intervals_mm`), plus the rim band inside
+    a frame (``rim = "channel"`` with ``frame_mm > 0``) and the electrode leads on electrodes whose side runs
+    along ``axis``; the grid's cell-count rules give these pieces ``channel_cells``. Other layouts (custom)
+    have none: their cells follow the size alone.
+    """
+    iv = [np.asarray(design.channel_intervals_mm()).reshape(-1, 2)]
+    if design.pattern == "square" and design.has_lattice:
+        L, f, w = design.size_mm, design.frame_mm, design.width_mm
+        if design.rim == "channel" and f > 0:
+            iv.append(np.array([[f, f + w / 2], [L - f - w / 2, L - f]]))
+        if design.electrode_leads:
+            bare = _layout.parametric_footprint("square", L, w, design.pitch_mm, design.rim, f)
+            el = design.electrodes()
+            no_contact = _layout.electrode_contact_mm(bare, el) <= 1e-12 * L
+            for cx, cy, _cz, _nx, _ny, t_axis, _ew, _h in el[no_contact]:
+                if int(t_axis) == axis:
+                    c = cx if axis == 0 else cy
+                    iv.append(np.array([[c - w / 2, c + w / 2]]))
+    raw = np.concatenate(iv)
+    raw = raw[np.argsort(raw[:, 0], kind="stable")]
+    merged: list[list[float]] = []
+    for a, b in raw:
+        if merged and a <= merged[-1][1]:
+            merged[-1][1] = max(merged[-1][1], b)
+        else:
+            merged.append([float(a), float(b)])
+    return np.asarray(merged).reshape(-1, 2)
 
 
 def _axis_breakpoints(design: LatticeDesign, tangent_axis: int, electrode_edges: bool = True) -> np.ndarray:
@@ -23,6 +75,7 @@ def _axis_breakpoints(design: LatticeDesign, tangent_axis: int, electrode_edges:
     # The centre line makes the cell count even, so the mirrored split of _kuhn_tets is symmetric.
     pts = [0.0, L / 2, L]
     pts += design.channel_intervals_mm().ravel().tolist()
+    pts += footprint_coordinates(design, tangent_axis).tolist()
     for cx, cy, _cz, _nx, _ny, axis, width, _h in design.electrodes():
         if electrode_edges and int(axis) == tangent_axis:
             c = cx if tangent_axis == 0 else cy
@@ -95,41 +148,56 @@ def grid_coordinates(design: LatticeDesign, size_mm: float, channel_cells: int, 
     """
     if not electrode_edges and cell_counts != "size":
         raise ValueError("electrode_edges=False needs cell_counts='size'")
-    iv, centre = design.channel_intervals_mm(), design.size_mm / 2
+    centre = design.size_mm / 2
 
-    def channel_of(a: float, b: float) -> np.ndarray | None:
-        """The channel interval holding the piece ``[a, b]``, or None."""
-        mid = 0.5 * (a + b)
-        hit = (iv[:, 0] <= mid) & (mid <= iv[:, 1])
-        return iv[np.argmax(hit)] if hit.any() else None
+    def rules(axis: int):
+        iv = channel_intervals(design, axis)
 
-    def in_channel(a: float, b: float) -> int:
-        return 1 if channel_of(a, b) is None else channel_cells
+        def channel_of(a: float, b: float) -> np.ndarray | None:
+            """The channel interval holding the piece ``[a, b]``, or None."""
+            mid = 0.5 * (a + b)
+            hit = (iv[:, 0] <= mid) & (mid <= iv[:, 1])
+            return iv[np.argmax(hit)] if hit.any() else None
 
-    def channel_share(a: float, b: float) -> int:
-        # Each side of the centre line of a channel gets channel_cells, a piece of it that electrode edges cut
-        # off only its share. channel_cells per piece made 0.25-0.5 mm slivers at w > electrode width (grid
-        # lines across the whole sensor, 21 % more nodes) and moved V_rel by < 0.03 %; the centre channel's
-        # halves keep theirs (halving them moved V_rel 0.6 % at w = 4: the centre is where touches land).
-        channel = channel_of(a, b)
-        if channel is None:
-            return 1
-        lo, hi = channel
-        lo, hi = (lo, min(hi, centre)) if 0.5 * (a + b) < centre else (max(lo, centre), hi)
-        return int(np.ceil(channel_cells * (b - a) / (hi - lo) - 1e-9))
+        def in_channel(a: float, b: float) -> int:
+            return 1 if channel_of(a, b) is None else channel_cells
+
+        def channel_share(a: float, b: float) -> int:
+            # Each side of the centre line of a channel gets channel_cells, a piece of it that electrode edges
+            # cut off only its share. channel_cells per piece made 0.25-0.5 mm slivers at w > electrode width
+            # (grid lines across the whole sensor, 21 % more nodes) and moved V_rel by < 0.03 %; the centre
+            # channel's halves keep theirs (halving them moved V_rel 0.6 % at w = 4: touches land there).
+            channel = channel_of(a, b)
+            if channel is None:
+                return 1
+            lo, hi = channel
+            lo, hi = (lo, min(hi, centre)) if 0.5 * (a + b) < centre else (max(lo, centre), hi)
+            return int(np.ceil(channel_cells * (b - a) / (hi - lo) - 1e-9))
+
+        return in_channel, channel_share
 
     xb, yb = _axis_breakpoints(design, 0, electrode_edges), _axis_breakpoints(design, 1, electrode_edges)
+    (x_in, x_share), (y_in, y_share) = rules(0), rules(1)
+    if cell_counts == "fixed":
+        x = _subdivide(xb, size_mm, x_in, _reference_breakpoints(design, xb, 0), vanishing_cells=1)
+        y = _subdivide(yb, size_mm, y_in, _reference_breakpoints(design, yb, 1), vanishing_cells=1)
+    else:
+        x, y = _subdivide(xb, size_mm, x_share), _subdivide(yb, size_mm, y_share)
+    return x, y, z_coordinates(design, size_mm, layer_cells, cell_counts)
+
+
+def z_coordinates(design: LatticeDesign, size_mm: float, layer_cells: int, cell_counts: str = "size") -> np.ndarray:
+    """The z levels of the layered meshes (mm), shape ``(nz,)``, shared by the grid and extruded meshers.
+
+    Levels on ``0``, the layer faces ``z0, z1`` and ``H``; each interval split into ``ceil(length / size_mm)``
+    equal cells, at least ``layer_cells`` through the conductive layer. ``cell_counts="fixed"`` takes the
+    substrate's count from the substrate plus layer (the layer shrunk onto its top face), so it does not move
+    with ``t``, and the layer gets exactly ``layer_cells``.
+    """
     z0, z1 = design.layer_z_mm
     zb = np.unique(np.round([0.0, z0, z1, design.total_thickness_mm], 9))
-    if cell_counts == "fixed":
-        x = _subdivide(xb, size_mm, in_channel, _reference_breakpoints(design, xb, 0), vanishing_cells=1)
-        y = _subdivide(yb, size_mm, in_channel, _reference_breakpoints(design, yb, 1), vanishing_cells=1)
-        zref = np.where(np.abs(zb - z0) < 1e-9, z1, zb) if z0 > 0 else None
-    else:
-        x, y = _subdivide(xb, size_mm, channel_share), _subdivide(yb, size_mm, channel_share)
-        zref = None
-    z = _subdivide(zb, size_mm, lambda a, b: layer_cells if (a >= z0 - 1e-9 and b <= z1 + 1e-9) else 1, zref)
-    return x, y, z
+    zref = (np.where(np.abs(zb - z0) < 1e-9, z1, zb) if z0 > 0 else None) if cell_counts == "fixed" else None
+    return _subdivide(zb, size_mm, lambda a, b: layer_cells if (a >= z0 - 1e-9 and b <= z1 + 1e-9) else 1, zref)
 
 
 def _kuhn_tets(x: np.ndarray, y: np.ndarray, z: np.ndarray) -> np.ndarray:
@@ -168,7 +236,8 @@ def grid_mesh(design: LatticeDesign, size_mm: float = 2.0, channel_cells: int = 
     Parameters
     ----------
     design
-        An axis-aligned design (the square pattern).
+        A design whose layout is axis-aligned (:attr:`LatticeDesign.is_axis_aligned`; else a
+        :class:`ParameterError` naming ``mesher`` before any work).
     size_mm
         Largest cell edge (mm).
     channel_cells
@@ -184,8 +253,10 @@ def grid_mesh(design: LatticeDesign, size_mm: float = 2.0, channel_cells: int = 
     Returns
     -------
     TetMesh
-        With region labels from the design's geometry and all named facet sets.
+        With region labels from the design's geometry, all named facet sets and ``cells`` = the hexahedral
+        cell of each tet (the mean-dilatation patches).
     """
+    require_axis_aligned(design)
     x, y, z = grid_coordinates(design, size_mm, channel_cells, layer_cells, cell_counts, electrode_edges)
     X, Y, Z = np.meshgrid(x, y, z, indexing="ij")
     # x fastest, matching _kuhn_tets' numbering.
@@ -196,5 +267,7 @@ def grid_mesh(design: LatticeDesign, size_mm: float = 2.0, channel_cells: int = 
     tets[neg] = tets[neg][:, [0, 2, 1, 3]]
     region = design.region_at(nodes[tets].mean(axis=1))
     facets, weights = tag_facets(nodes, tets, region, design, tol_mm=1e-7 * design.size_mm)
+    # _kuhn_tets lists the six tets of every cell, cell by cell in (i, j, k) order, once per corner path
+    cells = np.tile(np.arange((len(x) - 1) * (len(y) - 1) * (len(z) - 1), dtype=np.int64), 6)
     return TetMesh(nodes, tets, region, facets, weights,
-                   {"mesher": "grid", "grid_shape": [len(x), len(y), len(z)]})
+                   {"mesher": "grid", "grid_shape": [len(x), len(y), len(z)]}, cells=cells)

@@ -7,6 +7,10 @@ the fraction of the triangle covered by the named patch. Meshes whose triangles 
 grid mesher) have all weights 1; meshes that do not (tetwild, whose surface only approximates its input)
 carry the exact overlap fraction, so patch areas are exact either way.
 
+Tets may carry ``cells``: the patch of each tet for the mechanics' mean dilatation (the grid mesher's
+hexahedral cell, the extruded mesher's pair of prisms), so the volumetric constraint count is the mesher's
+explicit choice rather than a guess from node positions.
+
 Facet set names: ``top``, ``bottom``, ``hydrogel_boundary`` and ``electrode_1`` ... ``electrode_N``
 (numbering of :meth:`LatticeDesign.electrodes`; 1-based like the hardware).
 """
@@ -22,7 +26,8 @@ import numpy as np
 
 from ..design import REGION_IDS, REGION_NAMES
 
-FORMAT_VERSION = 1
+#: Version of the ``.npz`` layout; 2 added the optional ``cells`` array.
+FORMAT_VERSION = 2
 
 # Local faces of a tet (opposite vertex 0, 1, 2, 3), each ordered so its normal points out of a
 # positively oriented tet.
@@ -93,6 +98,9 @@ class TetMesh:
         Facet-set name -> covered fraction of each triangle, shape ``(K,)``; missing names mean all ones.
     info
         Provenance: mesher, settings, design hash, build seconds (JSON-serialisable values only).
+    cells
+        Optional mean-dilatation patch (cell) id of each tet, shape ``(M,)`` int64, or None (the mechanics
+        then groups tets itself).
     """
 
     nodes_mm: np.ndarray
@@ -101,6 +109,7 @@ class TetMesh:
     facets: dict = field(default_factory=dict)
     facet_weights: dict = field(default_factory=dict)
     info: dict = field(default_factory=dict)
+    cells: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         nodes = np.ascontiguousarray(self.nodes_mm, dtype=np.float64)
@@ -110,6 +119,13 @@ class TetMesh:
             raise ValueError(f"nodes_mm: expected shape (N, 3), got {nodes.shape}")
         if tets.ndim != 2 or tets.shape[1] != 4 or region.shape != (len(tets),):
             raise ValueError(f"tets/region: expected shapes (M, 4) and (M,), got {tets.shape}, {region.shape}")
+        cells = None
+        if self.cells is not None:
+            cells = np.ascontiguousarray(self.cells, dtype=np.int64)
+            if cells.shape != (len(tets),):
+                raise ValueError(f"cells: expected shape ({len(tets)},), got {cells.shape}")
+            cells.flags.writeable = False
+        object.__setattr__(self, "cells", cells)
         for arr in (nodes, tets, region):
             arr.flags.writeable = False
         object.__setattr__(self, "nodes_mm", nodes)
@@ -215,7 +231,8 @@ class TetMesh:
             if name in self.facet_weights:
                 weights[name] = self.facet_weights[name][ok]
         sub = TetMesh(self.nodes_mm[node_ids], new_index[tets], self.region[keep], facets, weights,
-                      {**self.info, "restricted_to": list(regions)})
+                      {**self.info, "restricted_to": list(regions)},
+                      cells=None if self.cells is None else self.cells[keep])
         return sub, node_ids
 
     def to_skfem(self):
@@ -233,6 +250,8 @@ class TetMesh:
         arrays = {"nodes_mm": self.nodes_mm, "tets": self.tets, "region": self.region,
                   "format_version": np.array(FORMAT_VERSION),
                   "info_json": np.array(json.dumps(self.info, sort_keys=True))}
+        if self.cells is not None:
+            arrays["cells"] = self.cells
         for name, tri in self.facets.items():
             arrays[f"facet:{name}"] = tri
         for name, w in self.facet_weights.items():
@@ -253,7 +272,9 @@ class TetMesh:
                 raise ValueError(f"{path}: mesh format version {version}, this latticeopt reads {FORMAT_VERSION}")
             facets = {k[6:]: z[k] for k in z.files if k.startswith("facet:")}
             weights = {k[7:]: z[k] for k in z.files if k.startswith("weight:")}
-            return cls(z["nodes_mm"], z["tets"], z["region"], facets, weights, json.loads(str(z["info_json"])))
+            cells = z["cells"] if "cells" in z.files else None
+            return cls(z["nodes_mm"], z["tets"], z["region"], facets, weights, json.loads(str(z["info_json"])),
+                       cells=cells)
 
     def to_vtu(self, path: str | Path, point_data: dict | None = None, cell_data: dict | None = None) -> None:
         """Write a VTU for ParaView: tets with ``region`` cell data plus the top, bottom and electrode triangles.
