@@ -19,7 +19,14 @@ import numpy as np
 import pytest
 
 from latticeopt.design import LatticeDesign
-from latticeopt.errors import AllFailedError, ConvergenceError, FolderLockedError, LatticeoptError, ParameterError
+from latticeopt.errors import (
+    AllFailedError,
+    ConvergenceError,
+    FolderLockedError,
+    LatticeoptError,
+    ModelBugError,
+    ParameterError,
+)
 from latticeopt.objectives import Objective
 from latticeopt.optimize import (
     ALGORITHMS,
@@ -377,6 +384,23 @@ def test_every_evaluation_failed_is_an_error(tmp_path, monkeypatch):
                            "test_optimize:failing_evaluate", "--quiet"], env=env, capture_output=True, text=True,
                           timeout=120)
     assert done.returncode == 1 and done.stderr.count("\n") == 1 and "Traceback" not in done.stderr, done.stderr
+
+
+def buggy_evaluate(design, phantom, settings) -> dict:
+    """TEST DOUBLE with a programming error on phantom index 1 (must stop the optimization)."""
+    if phantom.index == 1:
+        raise IndexError("fake bug: index 7 is out of bounds")
+    return analytic_evaluate(design, phantom, settings)
+
+
+def test_a_bug_in_the_model_stops_the_optimization(tmp_path):
+    path = _write(tmp_path)
+    with pytest.raises(ModelBugError, match="IndexError: fake bug") as info:
+        run_optimization(load_optimization(path), buggy_evaluate)
+    assert "\n" not in str(info.value)
+    assert "in buggy_evaluate" in (tmp_path / "out" / "error.log").read_text()
+    with ResultStore(tmp_path / "out", readonly=True) as store:
+        assert store.rows() and all(e.ok for e in store.rows())  # never stored as a failed phantom
 
 
 def test_optimization_refuses_a_locked_folder(tmp_path):

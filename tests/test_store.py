@@ -132,3 +132,29 @@ def test_store_survives_sigkill_mid_write(tmp_path):
         assert sorted(int(e.phantom_key[1:]) for e in rows) == list(range(len(rows)))
         for e in rows:
             assert e.voltages.shape == (208,) and np.all(e.voltages == e.v_rel) and e.forces_N == (e.v_rel,)
+
+
+def _try_lock_elsewhere(folder) -> subprocess.CompletedProcess:
+    code = textwrap.dedent("""
+        import sys
+        from latticeopt.errors import FolderLockedError
+        from latticeopt.store import folder_lock
+        try:
+            with folder_lock(sys.argv[1]):
+                print("got it")
+        except FolderLockedError as exc:
+            print(exc)
+    """)
+    return subprocess.run([sys.executable, "-c", code, str(folder)], capture_output=True, text=True, timeout=60)
+
+
+def test_folder_lock_is_exclusive_reentrant_and_released(tmp_path):
+    from latticeopt.store import LOCK_NAME, folder_lock
+
+    with folder_lock(tmp_path) as path:
+        with folder_lock(tmp_path):  # the same process may take it again (the optimizer's sweeps do)
+            assert path.read_text().split()[0] == str(os.getpid())
+        other = _try_lock_elsewhere(tmp_path).stdout  # the outer hold still counts
+        assert f"locked by PID {os.getpid()}" in other and str(tmp_path) in other
+    assert path.read_text() == "" and path.name == LOCK_NAME
+    assert _try_lock_elsewhere(tmp_path).stdout.strip() == "got it"

@@ -326,17 +326,6 @@ def test_second_run_on_a_locked_folder_refuses(tmp_path):
     assert run_sweep(study, fake_evaluate, progress=False).computed == 6  # released when its holder ended
 
 
-def test_folder_lock_is_reentrant_and_released(tmp_path):
-    from latticeopt.store import LOCK_NAME, folder_lock
-
-    with folder_lock(tmp_path) as path, folder_lock(tmp_path):
-        assert path.read_text().split()[0] == str(os.getpid())
-    assert path.read_text() == ""
-    with folder_lock(tmp_path):  # free again
-        pass
-    assert (tmp_path / LOCK_NAME).exists()
-
-
 def _store_keys(path: Path) -> set[tuple[str, str]]:
     with ResultStore(path, readonly=True) as store:
         return {(e.design_key, e.phantom_key) for e in store.rows()}
