@@ -110,7 +110,8 @@ def add_mesh_args(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--epsilon", dest="epsilon_rel", type=float, default=None,
                    help=f"tetwild: envelope relative to the bounding-box diagonal; default {d.epsilon_rel}")
     g.add_argument("--no-cache", action="store_true", help="do not read or write the mesh cache")
-    g.add_argument("--cache-dir", type=Path, default=None, help="mesh cache folder (default ./meshes)")
+    g.add_argument("--cache-dir", type=Path, default=None,
+                   help="mesh cache folder (default $LATTICEOPT_MESH_CACHE, else the user cache's latticeopt/meshes)")
 
 
 def mesh_settings_from_args(args: argparse.Namespace):
