@@ -1,0 +1,446 @@
+"""Calibrate physics parameters to measured presses: nlopt fit, uncertainty, predictive check.
+
+A measured press is one row of a CSV file: design keys (any of :data:`latticeopt.design.TABLE_KEYS`, e.g.
+``width_mm``, ``thickness_mm``, ``rim``), the touch (``x_mm, y_mm, radius_mm, depth_mm``) and what was measured:
+either ``v_rel`` (paper eq. 5) or the 208 voltages ``V1 ... V208`` in pyEIT "std" row order. Voltage rows need
+a reference row of the same design and touch position at ``depth_mm = 0``; their residual is the change of
+each channel relative to that reference, so the unknown drive current and gel conductivity scale cancel.
+
+The fit minimises the sum of squared relative residuals ``(predicted - measured) / measured`` (``v_rel``
+rows; voltage rows contribute their 208 relative changes, weighted ``1 / sqrt(208)`` so a press counts once)
+over the chosen ``[physics]`` keys within their bounds, by nlopt's BOBYQA on the unit box. It never leaves the
+bounds; a value that ends on one is reported as such (the data want a value outside them). Uncertainty:
+
+* standard errors from the Gauss-Newton covariance ``s^2 (J^T J)^-1`` at the optimum, ``s^2 = RSS / (n - p)``,
+  ``J`` by central differences (2 p extra predictions);
+* a conditional profile per parameter (the others at their fitted values) over ``profile_points`` values,
+  with the likelihood-ratio interval ``RSS <= RSS_min (1 + F(0.95; 1, n - p) / (n - p))``.
+
+The predictive check fits on the rows ``fit_on`` selects and reports the residuals of the others.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .design import TABLE_KEYS, LatticeDesign, design_from_table
+from .errors import LatticeoptError, ParameterError
+from .touches import Touch, validate_touches
+
+__all__ = ["Calibration", "FitParameter", "Press", "calibrate", "coupled_predictor", "parse_fit", "read_presses"]
+
+TOUCH_KEYS = ("x_mm", "y_mm", "radius_mm", "depth_mm")
+N_ROWS = 208
+VOLTAGE_KEYS = tuple(f"V{i}" for i in range(1, N_ROWS + 1))
+
+
+@dataclass(frozen=True)
+class Press:
+    """One measured press (mm; ``v_rel`` dimensionless, voltages in the file's unit)."""
+
+    row: int
+    design: LatticeDesign
+    touch: Touch
+    v_rel: float | None = None
+    voltages: tuple[float, ...] | None = None
+    fields: tuple[tuple[str, str], ...] = ()
+
+    def field(self, key: str) -> str | None:
+        return dict(self.fields).get(key)
+
+
+def _numeric_physics_keys() -> tuple[str, ...]:
+    from .coupled import PhysicsSettings
+
+    return tuple(f.name for f in dataclasses.fields(PhysicsSettings) if isinstance(f.default, float))
+
+
+@dataclass(frozen=True)
+class FitParameter:
+    """A numeric ``[physics]`` key fitted within ``[lower, upper]``."""
+
+    name: str
+    lower: float
+    upper: float
+
+    def __post_init__(self) -> None:
+        from .coupled import PhysicsSettings
+
+        keys = _numeric_physics_keys()
+        if self.name not in keys:
+            raise ParameterError("--fit", "KEY=LOW:HIGH with KEY a numeric [physics] key: one of " + ", ".join(keys),
+                                 self.name)
+        if not (math.isfinite(self.lower) and math.isfinite(self.upper) and self.lower < self.upper):
+            raise ParameterError(f"--fit {self.name}", "finite bounds LOW < HIGH", f"{self.lower}:{self.upper}")
+        for end in (self.lower, self.upper):
+            try:
+                PhysicsSettings(**{self.name: end})
+            except ParameterError as exc:
+                raise ParameterError(f"--fit {self.name}", f"bounds inside the key's range ({exc.expected})",
+                                     end) from None
+
+
+def parse_fit(text: str) -> FitParameter:
+    """``"hydrogel_shear_kPa=1:50"`` -> :class:`FitParameter`."""
+    name, sep, rng = str(text).partition("=")
+    lo, sep2, hi = rng.partition(":")
+    try:
+        lower, upper = float(lo), float(hi)
+    except ValueError:
+        lower = upper = math.nan
+    if not (sep and sep2 and name.strip()) or math.isnan(lower) or math.isnan(upper):
+        raise ParameterError("--fit", "KEY=LOW:HIGH, e.g. hydrogel_shear_kPa=1:50", text)
+    return FitParameter(name.strip(), lower, upper)
+
+
+def read_presses(path: str | Path) -> tuple[Press, ...]:
+    """Read and check a measured-press CSV (see the module docstring); errors name the file, row and column."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ParameterError("DATA", "a readable CSV file of measured presses", f"{p} ({exc.strerror})") from None
+    except UnicodeDecodeError:
+        raise ParameterError("DATA", "a UTF-8 text CSV file", str(p)) from None
+    reader = csv.DictReader(text.splitlines())
+    cols = reader.fieldnames or []
+    missing = [k for k in TOUCH_KEYS if k not in cols]
+    has_v, n_volt = "v_rel" in cols, sum(k in cols for k in VOLTAGE_KEYS)
+    if missing:
+        raise ParameterError(f"{p}: columns", "the touch columns " + ", ".join(TOUCH_KEYS), f"missing {missing}")
+    if has_v == bool(n_volt) or 0 < n_volt < N_ROWS:
+        raise ParameterError(f"{p}: columns", f"either v_rel or all of V1..V{N_ROWS}",
+                             f"v_rel {'present' if has_v else 'absent'}, {n_volt} voltage columns")
+    unknown = [c for c in cols if c not in (*TABLE_KEYS, *TOUCH_KEYS, "v_rel", *VOLTAGE_KEYS, "label", "source")]
+    if unknown:
+        raise ParameterError(f"{p}: columns", "design keys (" + ", ".join(TABLE_KEYS) + "), touch columns, v_rel "
+                             "or V1..V208, label, source", unknown[0])
+    presses = []
+    for i, row in enumerate(reader, start=2):
+        where = f"{p}: row {i}"
+        number = _number_reader(row, where)
+
+        table = {}
+        for k in TABLE_KEYS:
+            if row.get(k) not in (None, ""):
+                val = row[k]
+                table[k] = val if k in ("pattern", "rim", "layout") else (
+                    val.strip().lower() == "true" if k == "electrode_leads" else number(k))
+        for k in ("n_electrodes",):
+            if k in table:
+                table[k] = int(table[k])
+        try:
+            design = design_from_table(table, base_dir=str(p.parent))
+            touch = Touch(*(number(k) for k in TOUCH_KEYS))
+            validate_touches(design, [touch])
+        except ParameterError as exc:
+            raise ParameterError(f"{where}, {exc.name}", exc.expected, exc.got) from None
+        v_rel = volts = None
+        if has_v:
+            v_rel = number("v_rel")
+            if touch.depth_mm <= 0:
+                raise ParameterError(f"{where}, depth_mm", "a press (depth_mm > 0) for a v_rel row", row["depth_mm"])
+            if v_rel <= 0:
+                raise ParameterError(f"{where}, v_rel", "a positive relative change for a press", row["v_rel"])
+        else:
+            volts = tuple(number(k) for k in VOLTAGE_KEYS)
+        presses.append(Press(i, design, touch, v_rel, volts, tuple((k, row[k]) for k in cols if k in TABLE_KEYS)))
+    if not presses:
+        raise ParameterError(str(p), "at least one measured press", "no rows")
+    if not any(pr.touch.depth_mm > 0 for pr in presses):
+        raise ParameterError(str(p), "presses with depth_mm > 0", "only zero depths")
+    return tuple(presses)
+
+
+def _number_reader(row: dict, where: str) -> Callable[[str], float]:
+    def number(key: str) -> float:
+        try:
+            val = float(row[key])
+        except (TypeError, ValueError):
+            raise ParameterError(f"{where}, {key}", "a number", row[key]) from None
+        if not math.isfinite(val):
+            raise ParameterError(f"{where}, {key}", "a finite number", row[key])
+        return val
+
+    return number
+
+
+def _group_key(pr: Press) -> tuple:
+    t = pr.touch
+    return pr.design.content_hash(), round(t.x_mm, 9), round(t.y_mm, 9), round(t.radius_mm, 9)
+
+
+def _references(presses: Sequence[Press]) -> dict:
+    """Voltage data: the depth-0 row of every (design, position, radius)."""
+    refs = {}
+    for pr in presses:
+        if pr.voltages is not None and pr.touch.depth_mm == 0:
+            refs[_group_key(pr)] = np.asarray(pr.voltages)
+    for pr in presses:
+        if pr.voltages is not None and pr.touch.depth_mm > 0 and _group_key(pr) not in refs:
+            raise ParameterError(f"row {pr.row}", "a reference row (depth_mm = 0) of the same design and touch "
+                                 "position for voltage data", "none")
+    return refs
+
+
+def measured_changes(presses: Sequence[Press]) -> list[np.ndarray]:
+    """Per press, the measured quantity the fit compares: ``[v_rel]`` or the 208 relative changes."""
+    refs = _references(presses)
+    out = []
+    for pr in presses:
+        if pr.v_rel is not None:
+            out.append(np.array([pr.v_rel]))
+        else:
+            ref = refs[_group_key(pr)]
+            out.append((np.asarray(pr.voltages) - ref) / np.abs(ref))
+    return out
+
+
+def residuals(measured: Sequence[np.ndarray], predicted: Sequence[np.ndarray]) -> np.ndarray:
+    """Relative residuals of all presses, concatenated (see the module docstring for the weights)."""
+    parts = []
+    for m, q in zip(measured, predicted):
+        if m.size == 1:
+            parts.append((q - m) / m)
+        else:  # a voltage frame counts as one press
+            parts.append((q - m) / np.sqrt(m.size))
+    return np.concatenate(parts) if parts else np.zeros(0)
+
+
+Predictor = Callable[[Sequence[Press], Mapping[str, float]], list[np.ndarray]]
+
+
+def coupled_predictor(mesh_settings=None, physics: Mapping | None = None, cache_dir=None,
+                      progress: Callable[[str], None] | None = None) -> Predictor:
+    """The coupled model as a predictor: ``predict(presses, fitted) -> [v_rel] or 208 relative changes``.
+
+    One :class:`~latticeopt.coupled.CoupledModel` per design and physics; the mesh comes from the cache.
+    """
+    from .coupled import CoupledModel, PhysicsSettings
+
+    base = dict(physics or {})
+
+    def predict(presses: Sequence[Press], fitted: Mapping[str, float]) -> list[np.ndarray]:
+        settings = PhysicsSettings.from_dict({**base, **fitted})
+        models: dict[str, CoupledModel] = {}
+        out = []
+        for pr in presses:
+            key = pr.design.content_hash()
+            if key not in models:
+                models[key] = CoupledModel(pr.design, mesh_settings, settings, cache_dir)
+            model = models[key]
+            if pr.touch.depth_mm == 0:
+                res_v, ref = model.reference_voltages, model.reference_voltages
+            else:
+                res = model.simulate([pr.touch])
+                res_v, ref = res.voltages, res.reference_voltages
+            rel = (res_v - ref) / np.abs(ref)
+            out.append(np.array([float(np.mean(np.abs(rel)))]) if pr.v_rel is not None else rel)
+            if progress is not None:
+                progress(f"row {pr.row}: {pr.design.describe()}, depth {pr.touch.depth_mm:g} mm")
+        return out
+
+    return predict
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """Result of :func:`calibrate` (values in the keys' units)."""
+
+    parameters: tuple[FitParameter, ...]
+    values: dict
+    standard_errors: dict
+    intervals: dict
+    at_bound: tuple[str, ...]
+    rss: float
+    dof: int
+    evaluations: int
+    fit_rows: tuple[int, ...]
+    rows: tuple[dict, ...]
+    profiles: dict
+
+    def summary(self) -> dict:
+        """JSON-ready (NaN as None)."""
+        def clean(x):
+            if isinstance(x, float) and not math.isfinite(x):
+                return None
+            if isinstance(x, dict):
+                return {k: clean(v) for k, v in x.items()}
+            if isinstance(x, (list, tuple)):
+                return [clean(v) for v in x]
+            return x
+
+        return clean({"fitted": self.values, "standard_errors": self.standard_errors, "intervals_95": self.intervals,
+                      "at_bound": list(self.at_bound), "rss": self.rss, "dof": self.dof,
+                      "evaluations": self.evaluations, "fit_rows": list(self.fit_rows), "rows": list(self.rows),
+                      "bounds": {p.name: [p.lower, p.upper] for p in self.parameters},
+                      "profiles": {k: {"values": list(v[0]), "rss": list(v[1])} for k, v in self.profiles.items()}})
+
+
+def _select(presses: Sequence[Press], fit_on: Mapping[str, Sequence[str]] | None) -> list[bool]:
+    if not fit_on:
+        return [True] * len(presses)
+    chosen = []
+    for pr in presses:
+        ok = True
+        for key, vals in fit_on.items():
+            if key not in TABLE_KEYS:
+                raise ParameterError("--fit-on", "KEY=V1,V2 with KEY a design key: one of " + ", ".join(TABLE_KEYS),
+                                     key)
+            val = getattr(pr.design, key) if hasattr(pr.design, key) else pr.field(key)
+            ok &= any(_same(val, v) for v in vals)
+        # A voltage reference row goes with its presses: it is needed wherever they are.
+        chosen.append(ok)
+    if not any(chosen) or all(chosen):
+        raise ParameterError("--fit-on", "a selection keeping some rows for the fit and some for the check",
+                             f"{sum(chosen)} of {len(presses)} rows selected")
+    return chosen
+
+
+def _same(val, text: str) -> bool:
+    try:
+        return abs(float(val) - float(text)) < 1e-9
+    except (TypeError, ValueError):
+        return str(val) == str(text)
+
+
+def calibrate(presses: Sequence[Press], parameters: Sequence[FitParameter], predict: Predictor, *,
+              fit_on: Mapping[str, Sequence[str]] | None = None, max_evals: int = 40, profile_points: int = 7,
+              progress: Callable[[str], None] | None = None) -> Calibration:
+    """Fit ``parameters`` to ``presses`` (module docstring); ``predict`` is :func:`coupled_predictor` or a test
+    double."""
+    import nlopt
+    from scipy.stats import f as f_dist
+
+    if not parameters:
+        raise ParameterError("--fit", "at least one KEY=LOW:HIGH", "none")
+    chosen = _select(presses, fit_on)
+    fit_set = [pr for pr, c in zip(presses, chosen) if c]
+    measured_all = measured_changes(presses)
+    measured = [m for m, c in zip(measured_all, chosen) if c]
+    n_res = sum(pr.touch.depth_mm > 0 for pr in fit_set)  # a voltage frame counts as one press
+    p = len(parameters)
+    if n_res <= p:
+        raise ParameterError("--fit", f"fewer fitted parameters than fitted presses ({n_res} presses)", p)
+    lo = np.array([q.lower for q in parameters])
+    span = np.array([q.upper - q.lower for q in parameters])
+    cache: dict[tuple, float] = {}
+
+    def values(u: np.ndarray) -> dict:
+        return {q.name: float(x) for q, x in zip(parameters, lo + np.clip(u, 0, 1) * span)}
+
+    def rss(u: np.ndarray) -> float:
+        key = tuple(np.round(np.clip(u, 0, 1), 12))
+        if key not in cache:
+            r = residuals(measured, predict(fit_set, values(np.array(key))))
+            cache[key] = float(r @ r)
+            if progress is not None:
+                progress(f"evaluation {len(cache)}: {values(np.array(key))} -> RSS {cache[key]:.4g}")
+        return cache[key]
+
+    opt = nlopt.opt(nlopt.LN_BOBYQA if p > 1 else nlopt.LN_COBYLA, p)
+    opt.set_lower_bounds([0.0] * p)
+    opt.set_upper_bounds([1.0] * p)
+    opt.set_min_objective(lambda u, grad: rss(np.asarray(u)))
+    opt.set_maxeval(max_evals)
+    opt.set_xtol_abs(1e-4)
+    opt.set_initial_step(0.2)
+    try:
+        u = np.asarray(opt.optimize([0.5] * p))
+    except (nlopt.RoundoffLimited, RuntimeError, ValueError) as exc:
+        if not cache:
+            raise LatticeoptError(f"calibration failed before any evaluation: {exc}") from None
+        u = np.array(min(cache, key=cache.get))
+    best = min(cache, key=cache.get)
+    u = np.array(best) if cache[best] <= rss(u) else u
+    rss_min = rss(u)
+    dof = n_res - p
+    s2 = rss_min / dof
+    # Gauss-Newton covariance from central differences of the residual vector (in the keys' units).
+    h = np.minimum(0.02, np.minimum(u, 1 - u) + 1e-12)
+    h = np.where(h < 1e-6, 0.02, h)
+    jac = []
+    for k in range(p):
+        up, dn = u.copy(), u.copy()
+        up[k] = min(u[k] + h[k], 1.0)
+        dn[k] = max(u[k] - h[k], 0.0)
+        r_up = residuals(measured, predict(fit_set, values(up)))
+        r_dn = residuals(measured, predict(fit_set, values(dn)))
+        jac.append((r_up - r_dn) / ((up[k] - dn[k]) * span[k]))
+    J = np.stack(jac, axis=1)
+    try:
+        cov = s2 * np.linalg.inv(J.T @ J)
+        se = {q.name: float(np.sqrt(max(cov[k, k], 0.0))) for k, q in enumerate(parameters)}
+    except np.linalg.LinAlgError:
+        se = {q.name: math.inf for q in parameters}
+    # Conditional profiles and likelihood-ratio intervals.
+    limit = rss_min * (1 + f_dist.ppf(0.95, 1, dof) / dof)
+    profiles, intervals = {}, {}
+    for k, q in enumerate(parameters):
+        if profile_points < 2:
+            break
+        grid = np.union1d(np.linspace(0, 1, profile_points), [u[k]])
+        vals = []
+        for g in grid:
+            uu = u.copy()
+            uu[k] = g
+            vals.append(rss(uu))
+        xs = lo[k] + grid * span[k]
+        profiles[q.name] = (xs.tolist(), vals)
+        inside = [x for x, r in zip(xs, vals) if r <= limit] + [lo[k] + u[k] * span[k]]
+        intervals[q.name] = [float(min(inside)), float(max(inside))]
+    fitted = values(u)
+    at_bound = tuple(q.name for k, q in enumerate(parameters) if u[k] < 1e-3 or u[k] > 1 - 1e-3)
+    predicted = predict(presses, fitted)
+    rows = []
+    for pr, m, q, c in zip(presses, measured_all, predicted, chosen):
+        r = residuals([m], [q])
+        rows.append({"row": pr.row, "design": pr.design.describe(), "depth_mm": pr.touch.depth_mm,
+                     "used_in_fit": bool(c), "measured": float(m[0]) if m.size == 1 else float(np.mean(np.abs(m))),
+                     "predicted": float(q[0]) if q.size == 1 else float(np.mean(np.abs(q))),
+                     "relative_residual": float(np.sqrt(r @ r))})
+    return Calibration(tuple(parameters), fitted, se, intervals, at_bound, rss_min, dof, len(cache),
+                       tuple(pr.row for pr in fit_set), tuple(rows), profiles)
+
+
+def plot_calibration(cal: Calibration, path: Path) -> Path:
+    """Measured against predicted (fit rows filled, held-out rows open) and the conditional profiles."""
+    from matplotlib.figure import Figure
+
+    n_prof = len(cal.profiles)
+    fig = Figure(figsize=(5.0 + 4.0 * n_prof, 4.4), layout="constrained")
+    axes = fig.subplots(1, 1 + n_prof, squeeze=False)[0]
+    ax = axes[0]
+    for used, style in ((True, "o"), (False, "s")):
+        pts = [(r["measured"], r["predicted"]) for r in cal.rows if r["used_in_fit"] == used]
+        if pts:
+            m, q = zip(*pts)
+            ax.plot(m, q, style, mfc="C0" if used else "none", mec="C0",
+                    label="fitted rows" if used else "held-out rows (predicted)")
+    lim = [0, 1.1 * max(max(r["measured"], r["predicted"]) for r in cal.rows)]
+    ax.plot(lim, lim, "k--", lw=0.8, label="measured = predicted")
+    ax.set_xlim(lim)
+    ax.set_ylim(lim)
+    ax.set_xlabel("measured (V_rel or mean |dV/V|)")
+    ax.set_ylabel("predicted")
+    fitted = ", ".join(f"{k} = {v:.4g} ± {cal.standard_errors[k]:.2g}" for k, v in cal.values.items())
+    ax.set_title(fitted, fontsize="small")
+    ax.legend(fontsize="small")
+    for ax, (name, (xs, vals)) in zip(axes[1:], cal.profiles.items()):
+        ax.plot(xs, vals, "o-")
+        ax.axvline(cal.values[name], color="k", lw=0.8)
+        lo, hi = cal.intervals[name]
+        ax.axvspan(lo, hi, color="C1", alpha=0.2, label="95 % likelihood-ratio interval")
+        ax.set_xlabel(name)
+        ax.set_ylabel("sum of squared relative residuals")
+        ax.set_title("conditional profile (others at their fit)", fontsize="small")
+        ax.legend(fontsize="small")
+    fig.savefig(path, dpi=130)
+    return path

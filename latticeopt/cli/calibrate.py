@@ -1,0 +1,118 @@
+"""``latticeopt calibrate``: fit [physics] parameters to measured presses (nlopt), with uncertainty."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from ..errors import ParameterError
+from ._common import add_mesh_args, emit_json, mesh_settings_from_args
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "calibrate", help="fit physics parameters to measured presses",
+        description="Fit numeric [physics] keys (e.g. hydrogel_shear_kPa) to measured presses by nlopt within "
+                    "the given bounds: fitted values with standard errors and likelihood-ratio intervals, "
+                    "residuals, a measured-vs-predicted plot and, with --fit-on, a predictive check on the rows "
+                    "left out of the fit. DATA columns: design keys (width_mm, thickness_mm, rim, ...), x_mm, "
+                    "y_mm, radius_mm, depth_mm, and v_rel or V1..V208 (pyEIT 'std' order; voltage rows need a "
+                    "depth_mm = 0 reference row). Example: studies/data/paper_press_measured.csv.")
+    p.add_argument("data", metavar="DATA.csv", help="measured presses")
+    p.add_argument("--fit", action="append", required=True, metavar="KEY=LOW:HIGH",
+                   help="a [physics] key to fit and its bounds, e.g. hydrogel_shear_kPa=1:50 (repeatable)")
+    p.add_argument("--fit-on", action="append", default=[], metavar="KEY=V1,V2",
+                   help="fit only on rows whose design KEY is one of the values; predict the others (repeatable)")
+    p.add_argument("--physics", action="append", default=[], metavar="KEY=VALUE",
+                   help="fixed [physics] setting for every prediction (repeatable)")
+    p.add_argument("--max-evals", type=int, default=30, help="objective evaluations of the fit (default 30)")
+    p.add_argument("--profile-points", type=int, default=7,
+                   help="points of each conditional profile (0: none; default 7)")
+    p.add_argument("--out", type=Path, default=None, help="output folder (default runs/calibrate-<DATA stem>)")
+    p.add_argument("--json", action="store_true", help="print one JSON object instead of text")
+    p.add_argument("--quiet", "-q", action="store_true", help="no progress lines on stderr")
+    add_mesh_args(p)
+    p.set_defaults(func=run_calibrate)
+
+
+def _fit_on(texts) -> dict:
+    out = {}
+    for text in texts:
+        key, sep, vals = str(text).partition("=")
+        if not sep or not key.strip() or not vals.strip():
+            raise ParameterError("--fit-on", "KEY=V1,V2, e.g. width_mm=0,4", text)
+        out[key.strip()] = [v.strip() for v in vals.split(",") if v.strip()]
+    return out
+
+
+def _physics(texts) -> dict:
+    from ..coupled import PhysicsSettings
+    from ..study import parse_override
+
+    values = {}
+    for text in texts:
+        key, value = parse_override(text)
+        values[key] = value
+    try:
+        PhysicsSettings.from_dict(values)
+    except ParameterError as exc:
+        raise ParameterError(f"--physics {exc.name}", exc.expected, exc.got) from None
+    return values
+
+
+def _writable_folder(path: Path) -> Path:
+    if path.exists() and not path.is_dir():
+        raise ParameterError("--out", "a folder (or a path where one can be made)", f"{path} (a file)")
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        probe = path / ".write-test"
+        probe.write_text("")
+        probe.unlink()
+    except OSError as exc:
+        raise ParameterError("--out", "a writable folder", f"{path} ({exc.strerror})") from None
+    return path
+
+
+def run_calibrate(args: argparse.Namespace) -> int:
+    from ..calibrate import calibrate, coupled_predictor, parse_fit, plot_calibration, read_presses
+
+    params = [parse_fit(t) for t in args.fit]
+    if len({q.name for q in params}) != len(params):
+        raise ParameterError("--fit", "each key once", [q.name for q in params])
+    if args.max_evals < 1:
+        raise ParameterError("--max-evals", "an integer >= 1", args.max_evals)
+    if args.profile_points < 0 or args.profile_points == 1:
+        raise ParameterError("--profile-points", "0 (none) or an integer >= 2", args.profile_points)
+    physics = _physics(args.physics)
+    clash = sorted(set(physics) & {q.name for q in params})
+    if clash:
+        raise ParameterError("--physics", "keys other than the fitted ones", clash[0])
+    fit_on = _fit_on(args.fit_on)
+    presses = read_presses(args.data)
+    mesh = mesh_settings_from_args(args)
+    out = _writable_folder(args.out or Path("runs") / f"calibrate-{Path(args.data).stem}")
+    say = None if args.quiet else (lambda msg: print(msg, file=sys.stderr, flush=True))
+    predict = coupled_predictor(mesh, physics, cache_dir=False if args.no_cache else args.cache_dir)
+    cal = calibrate(presses, params, predict, fit_on=fit_on, max_evals=args.max_evals,
+                    profile_points=args.profile_points, progress=say)
+    summary = {**cal.summary(), "data": str(args.data), "physics": physics, "mesh": mesh.as_dict()}
+    (out / "calibration.json").write_text(json.dumps(summary, indent=1))
+    figure = plot_calibration(cal, out / "calibration.png")
+    if args.json:
+        emit_json({**summary, "figure": str(figure)})
+        return 0
+    for name, val in cal.values.items():
+        lo, hi = cal.intervals.get(name, (float("nan"), float("nan")))
+        bound = "  AT A BOUND: the data want a value outside the range given" if name in cal.at_bound else ""
+        print(f"{name} = {val:.4g} ± {cal.standard_errors[name]:.2g} (SE; 95 % likelihood-ratio interval "
+              f"{lo:.4g} .. {hi:.4g}, conditional){bound}")
+    print(f"RSS {cal.rss:.4g} over {cal.dof + len(params)} presses ({cal.dof} degrees of freedom), "
+          f"{cal.evaluations} evaluations")
+    print("row  used  measured   predicted  design / depth")
+    for r in cal.rows:
+        print(f"{r['row']:>3}  {'fit ' if r['used_in_fit'] else 'pred'}  {r['measured']:.5f}    {r['predicted']:.5f}"
+              f"    {r['design']}, {r['depth_mm']:g} mm")
+    print(f"wrote {out / 'calibration.json'} and {figure}")
+    return 0
