@@ -1,8 +1,11 @@
-"""Grid versus tetwild mesher on the paper's optimum design (w = 4 mm, t = 3 mm, p = 12.5 mm).
+"""Grid, extruded and tetwild meshers on the paper's optimum design (w = 4 mm, t = 3 mm, p = 12.5 mm).
 
 Prints one row per mesher and size: nodes, tets, build seconds (cache disabled), worst tet quality (mean
-ratio), hydrogel-volume error and the worst electrode-area error against the analytic values
-(16128 mm^3; 4 mm x 3 mm = 12 mm^2), then a conclusion on the default mesher for the square lattice.
+ratio), hydrogel-volume error and the worst electrode-area error against the analytic values (footprint
+area x t; each electrode's contact with the gel x t), then a conclusion on the default mesher for the
+square lattice. The extruded mesher runs on the square lattice (rim none and channel) and on the hexagonal,
+triangular and diagonal lattices of the same w and t (speed targets at 2 mm: square under 2 s, hexagonal
+under 5 s, one core).
 
 Each fTetWild run is finished twice from the same raw output: with the envelope snap (what ``tetwild_mesh``
 returns) and without (``raw``), so the snap's effect is measured on identical meshes. Their seconds are the
@@ -12,6 +15,7 @@ Usage::
 
     python benchmarks/bench_mesh.py                      # grid 4/2/1 mm, tetwild 4/2/1 mm (~3-5 min)
     python benchmarks/bench_mesh.py --tetwild-sizes 4 2  # skip the slow 1 mm tetwild run
+    python benchmarks/bench_mesh.py --tetwild-sizes --grid-sizes 2 --extruded-sizes 2   # no tetwild
 """
 
 from __future__ import annotations
@@ -26,17 +30,22 @@ for _var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
 import numpy as np  # noqa: E402
 
 from latticeopt.design import LatticeDesign  # noqa: E402
+from latticeopt.layout import electrode_contact_mm  # noqa: E402
+from latticeopt.mesh.extruded import extruded_mesh  # noqa: E402
 from latticeopt.mesh.grid import grid_mesh  # noqa: E402
 from latticeopt.mesh.tetwild import run_ftetwild, tetmesh_from_ftetwild  # noqa: E402
 
 DESIGN = LatticeDesign(width_mm=4.0, thickness_mm=3.0)
+EXTRUDED = {"extr square": DESIGN, "extr sq rim": DESIGN.replace(rim="channel"),
+            "extr hex": DESIGN.replace(pattern="hexagonal"), "extr tri": DESIGN.replace(pattern="triangular"),
+            "extr diag": DESIGN.replace(pattern="diagonal")}
 
 
-def _row(label: str, size: float, mesh, seconds: float) -> dict:
+def _row(label: str, size: float, mesh, seconds: float, design: LatticeDesign = DESIGN) -> dict:
     gel = mesh.region_volumes_mm3()["hydrogel"]
-    exact_gel = DESIGN.region_volumes_mm3()["hydrogel"]
+    exact_gel = design.footprint().area * design.thickness_mm
     areas = mesh.electrode_areas_mm2()
-    exact_area = DESIGN.electrode_width_mm * DESIGN.thickness_mm
+    exact_area = electrode_contact_mm(design.footprint(), design.electrodes()) * design.thickness_mm
     return {"mesher": label, "size": size, "nodes": mesh.n_nodes, "tets": mesh.n_tets, "seconds": seconds,
             "min_q": float(mesh.quality().min()), "gel_err": 100 * (gel / exact_gel - 1),
             "elec_err": 100 * float(np.max(np.abs(areas / exact_area - 1))),
@@ -46,6 +55,7 @@ def _row(label: str, size: float, mesh, seconds: float) -> dict:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--grid-sizes", type=float, nargs="*", default=[4.0, 2.0, 1.0])
+    parser.add_argument("--extruded-sizes", type=float, nargs="*", default=[4.0, 2.0, 1.0])
     parser.add_argument("--tetwild-sizes", type=float, nargs="*", default=[4.0, 2.0, 1.0])
     parser.add_argument("--threads", type=int, default=0, help="fTetWild threads (0 = all cores)")
     args = parser.parse_args()
@@ -56,6 +66,12 @@ def main() -> None:
         mesh = grid_mesh(DESIGN, size)
         rows.append(_row("grid", size, mesh, time.perf_counter() - t0))
         print(f"  grid {size:g} mm done in {rows[-1]['seconds']:.1f} s", flush=True)
+    for size in args.extruded_sizes:
+        for label, design in EXTRUDED.items():
+            t0 = time.perf_counter()
+            mesh = extruded_mesh(design, size)
+            rows.append(_row(label, size, mesh, time.perf_counter() - t0, design))
+        print(f"  extruded {size:g} mm done", flush=True)
     for size in args.tetwild_sizes:
         t0 = time.perf_counter()
         raw = run_ftetwild(DESIGN, size, 1e-3, args.threads)
