@@ -1,9 +1,13 @@
 """Electrics: steady current flow in the (deformed) hydrogel with rim electrodes.
 
+>>> from latticeopt import LatticeDesign, MeshSettings, mesh_design
 >>> from latticeopt.electrics import ForwardModel, Protocol
->>> model = ForwardModel(mesh)                      # doctest: +SKIP  (full TetMesh or hydrogel sub-mesh)
->>> model.voltages.shape                            # doctest: +SKIP
+>>> mesh = mesh_design(LatticeDesign(), MeshSettings(size_mm=6), cache_dir=False)
+>>> model = ForwardModel(mesh)                      # the full TetMesh or its hydrogel sub-mesh
+>>> model.voltages.shape
 (208,)
+>>> Protocol.adjacent(16).n_rows
+208
 
 * :class:`Protocol` - drive/measurement patterns (pyEIT "std" order by default, reciprocity bookkeeping).
 * :class:`ForwardModel` - complete electrode model (or point electrodes), assembled and factorized once;

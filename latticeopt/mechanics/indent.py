@@ -1,10 +1,12 @@
 """Large-deformation indentation of the sensor stack: load stepping, Newton, step halving.
 
->>> from latticeopt import LatticeDesign, mesh_design
+>>> from latticeopt import LatticeDesign, MeshSettings, mesh_design
 >>> from latticeopt.mechanics import indent
 >>> from latticeopt.touches import Touch
->>> res = indent(mesh_design(LatticeDesign()), [Touch(50, 50, 8.75, 4.0)])  # doctest: +SKIP
->>> res.forces_N, res.deformed_mesh  # doctest: +SKIP
+>>> mesh = mesh_design(LatticeDesign(), MeshSettings(size_mm=6), cache_dir=False)   # default: 2 mm
+>>> res = indent(mesh, [Touch(50, 50, 8.75, 4.0)])
+>>> len(res.forces_N), res.deformed_mesh.nodes_mm.shape == mesh.nodes_mm.shape
+(1, True)
 
 Bottom face fixed, sides free, the indenters of :mod:`latticeopt.mechanics.indenters` on the top. All touches
 are driven together: at load factor ``lam`` touch ``i`` is at depth ``lam * depth_i`` (load steps of at most

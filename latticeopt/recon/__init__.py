@@ -1,10 +1,17 @@
 """Tactile image reconstruction from an exported sensor model (paper §V).
 
->>> from latticeopt.sensor_model import load_sensor_model, SensorSimulator
->>> from latticeopt.recon import LinearReconstructor, read_frames, relative_change
->>> model = load_sensor_model("sensor.npz")                                # doctest: +SKIP
->>> y = relative_change(read_frames("frames.csv", model.protocol), model.v_ref)  # doctest: +SKIP
->>> images = LinearReconstructor(model, "noser").reconstruct(y)            # doctest: +SKIP
+>>> import numpy as np
+>>> from latticeopt import LatticeDesign, MeshSettings
+>>> from latticeopt.sensor_model import SensorSimulator, build_sensor_model, load_sensor_model
+>>> from latticeopt.recon import LinearReconstructor, read_frames, relative_change, render_touches
+>>> model = build_sensor_model(LatticeDesign(), MeshSettings(size_mm=6), cache_dir=False)
+>>> disc = render_touches(np.array([[30.0, 65.0, 20.0, 0.3]]), model.sigma0_S_per_m, model.n_pixels)
+>>> y = relative_change(SensorSimulator(model).voltages(disc), model.v_ref)   # one simulated frame
+>>> LinearReconstructor(model, "noser").reconstruct(y).shape
+(1, 48, 48)
+
+Real data: ``model = load_sensor_model("sensor.npz")`` (written by ``latticeopt export``) and
+``y = relative_change(read_frames("frames.csv", model.protocol), model.v_ref)``.
 
 Modules: :mod:`.classical` (one-step Gauss-Newton / Tikhonov with identity, NOSER and Laplacian priors, GCV,
 iterative Gauss-Newton), :mod:`.frames` (CSV/NPY frames of a real 16-electrode system), :mod:`.dataset`
