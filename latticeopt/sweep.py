@@ -203,8 +203,11 @@ def _write_error_log(out_dir: Path, header: str, text: str) -> Path:
 
 def _model_bug(out_dir: Path, settings: EvalSettings, stored: int, design, phantom, payload: dict) -> ModelBugError:
     """Log a bug payload's traceback and build the one-line error that stops the run."""
-    where = {"prepare": "preparing", "result": "checking the result of"}.get(payload.get("where"), "evaluating")
-    what = f"{where} phantom {phantom.index} ({phantom.n_touches} touches) of {design.describe()}"
+    if payload.get("where") == "prepare":
+        what = f"preparing {design.describe()} (the model's per-design set-up)"
+    else:
+        where = "checking the result of" if payload.get("where") == "result" else "evaluating"
+        what = f"{where} phantom {phantom.index} ({phantom.n_touches} touches) of {design.describe()}"
     first = (payload["error"].splitlines() or [""])[0]
     worker = payload.get("worker", {})
     path = _write_error_log(out_dir, f"model {settings.model}, {what}, worker {worker.get('host', '?')}:"

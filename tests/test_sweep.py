@@ -473,6 +473,30 @@ def fake_evaluate_prepared(design, phantom, settings) -> dict:
 fake_evaluate_prepared.prepare = _prepare_fake
 
 
+def _prepare_buggy(design, settings):
+    if design.width_mm == 2:
+        return settings.no_such_setting  # AttributeError: a bug in the set-up, not a failed phantom
+    return _prepare_fake(design, settings)
+
+
+def fake_evaluate_prepare_buggy(design, phantom, settings) -> dict:
+    """TEST DOUBLE whose ``prepare`` hook has a programming error for the w = 2 design."""
+    return _prepare_buggy(design, settings)(phantom)
+
+
+fake_evaluate_prepare_buggy.prepare = _prepare_buggy
+
+
+def test_a_bug_in_the_prepare_hook_stops_the_sweep(tmp_path):
+    study = _study(tmp_path)
+    with pytest.raises(ModelBugError, match="^AttributeError: ") as info:
+        run_sweep(study, fake_evaluate_prepare_buggy, progress=False)
+    assert f"while preparing {study.designs[1].describe()} " in str(info.value) and "\n" not in str(info.value)
+    assert "in _prepare_buggy" in (study.out_dir / "error.log").read_text()
+    with ResultStore(study.out_dir, readonly=True) as store:
+        assert len(store) == 3 and all(e.ok for e in store.rows())  # the w = 0 design, none recorded as failed
+
+
 def test_prepare_hook_runs_once_per_chunk_of_one_design(tmp_path, monkeypatch):
     from latticeopt.sweep import CHUNK_PHANTOMS
 
