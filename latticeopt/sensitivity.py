@@ -1,0 +1,189 @@
+"""How robust is a verdict: re-run a study under each uncertain input and report what moves.
+
+``latticeopt sensitivity STUDY.toml --vary KEY=V1,V2 ...`` runs the study once as it is (the baseline) and once
+per value of every varied key, one key at a time, each run in its own folder (``<out>/sensitivity/KEY=VALUE``, a
+normal resumable sweep store). A key is any dotted study key (``physics.hydrogel_shear_kPa``, ``design.rim``,
+``mesh.size_mm``); a bare ``[physics]`` key or design key is completed to ``physics.KEY`` or ``design.KEY``.
+
+Figures per run: for a press study, V_rel of every design at the deepest depth and every ``[[press.compare]]``
+ratio (deterministic: a press has no phantom sampling, so its error is the mesh error, which the study's mesh
+fixes); for a grid study, every design's mean V_rel with its standard error over the common phantoms, and the
+best design. The table has one row per run; the tornado plot shows, per key, how far each figure moves from
+the baseline over the values tried, with the sampling error (grid studies) as error bars.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import tomllib
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from .design import TABLE_KEYS
+from .errors import ParameterError
+from .study import Study, load_study
+
+__all__ = ["Variation", "load_variants", "parse_vary", "run_sensitivity", "plot_tornado", "write_table"]
+
+
+@dataclass(frozen=True)
+class Variation:
+    """A dotted study key and the values it takes (one run each)."""
+
+    key: str
+    values: tuple
+
+
+def parse_vary(text: str) -> Variation:
+    """``"hydrogel_shear_kPa=2,15"`` -> ``Variation("physics.hydrogel_shear_kPa", (2, 15))`` (TOML values)."""
+    from .coupled import PhysicsSettings
+
+    key, sep, vals = str(text).partition("=")
+    key = key.strip()
+    items = [v.strip() for v in vals.split(",") if v.strip()]
+    if not sep or not key or not items:
+        raise ParameterError("--vary", "KEY=V1,V2,... e.g. hydrogel_shear_kPa=2,15 or design.rim=channel", text)
+    if "." not in key:
+        physics = PhysicsSettings.__dataclass_fields__
+        if key in physics:
+            key = f"physics.{key}"
+        elif key in TABLE_KEYS:
+            key = f"design.{key}"
+        else:
+            raise ParameterError("--vary", "a dotted study key, a [physics] key (" + ", ".join(physics) + ") or a "
+                                 "design key (" + ", ".join(TABLE_KEYS) + ")", key)
+    values = []
+    for item in items:
+        try:
+            values.append(tomllib.loads(f"v = {item}")["v"])
+        except tomllib.TOMLDecodeError:
+            values.append(item)
+    if len({repr(v) for v in values}) != len(values):
+        raise ParameterError(f"--vary {key}", "distinct values", items)
+    return Variation(key, tuple(values))
+
+
+def _label(key: str, value) -> str:
+    return f"{key}={value}"
+
+
+def load_variants(path: str | Path, variations: Sequence[Variation], overrides: Sequence[str] = ()
+                  ) -> list[tuple[str, str | None, object, Study]]:
+    """The baseline and every variant as validated studies (all checked before any work).
+
+    Returns ``(label, key, value, study)`` rows; the baseline has key and value ``None``.
+    """
+    base = load_study(path, overrides)
+    if base.kind == "grid" and len(base.designs) * len(base.phantoms) > 400:
+        raise ParameterError("STUDY", "a press study or a small grid (at most 400 evaluations per run)",
+                             f"{len(base.designs)} designs x {len(base.phantoms)} phantoms")
+    root = base.out_dir / "sensitivity"
+    runs = [("baseline", None, None, load_study(path, [*overrides, f"out={(root / 'baseline').as_posix()}"]))]
+    for var in variations:
+        for val in var.values:
+            label = _label(var.key, val)
+            text = f"{var.key}={_toml(val)}"
+            try:
+                study = load_study(path, [*overrides, text, f"out={(root / label).as_posix()}"])
+            except ParameterError as exc:
+                raise ParameterError(f"--vary {var.key}", exc.expected, exc.got) from None
+            runs.append((label, var.key, val, study))
+    return runs
+
+
+def _toml(value) -> str:
+    if isinstance(value, str):
+        return f'"{value}"'
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    return repr(value)
+
+
+def figures(study: Study, evaluations) -> dict:
+    """The figures of one run (module docstring): name -> (value, standard error or NaN)."""
+    from .report import _fmt, best_design, press_ratios, summarize
+
+    out = {}
+    if study.kind == "press":
+        groups = [evaluations[i * len(study.phantoms):(i + 1) * len(study.phantoms)] for i in range(len(study.designs))]
+        for design, group in zip(study.designs, groups):
+            last = group[-1]
+            out[f"V_rel {_fmt(design, study.grid_fields)}"] = (last.v_rel if last.ok else math.nan, math.nan)
+        for r in press_ratios(study, evaluations):
+            out[f"ratio {r['label']}"] = (r["ratio"], math.nan)
+    else:
+        for design, s in zip(study.designs, summarize(study, evaluations)):
+            out[f"V_rel {_fmt(design, study.grid_fields)}"] = (s["v_rel_mean"], s["v_rel_se"])
+        best = best_design(study, evaluations)
+        out["best design"] = (_fmt(best["design"], study.grid_fields) if best else "none", math.nan)
+    return out
+
+
+def run_sensitivity(runs, run: Callable[[Study], object], progress: Callable[[str], None] | None = None
+                    ) -> list[dict]:
+    """Run every study (``run(study) -> SweepResult``) and collect one row of figures per run."""
+    rows = []
+    for label, key, value, study in runs:
+        if progress is not None:
+            progress(f"== {label} ==")
+        res = run(study)
+        rows.append({"run": label, "key": key, "value": value, "figures": figures(study, res.evaluations),
+                     "failed": sum(not e.ok for e in res.evaluations)})
+    return rows
+
+
+def write_table(rows: Sequence[dict], path: Path) -> Path:
+    """One CSV row per run: the run, the varied key and value, every figure and its SE."""
+    names = list(dict.fromkeys(n for r in rows for n in r["figures"]))
+    with open(path, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["run", "key", "value", "failed", *[c for n in names for c in (n, f"{n} SE")]])
+        for r in rows:
+            cells = []
+            for n in names:
+                val, se = r["figures"].get(n, (math.nan, math.nan))
+                cells += [val, se]
+            w.writerow([r["run"], r["key"] or "", "" if r["value"] is None else r["value"], r["failed"], *cells])
+    return path
+
+
+def plot_tornado(rows: Sequence[dict], path: Path) -> Path | None:
+    """Per numeric figure, how far each varied key moves it from the baseline (bars from the lowest to the highest
+    value over the key's values, error bars = sampling SE)."""
+    from matplotlib.figure import Figure
+
+    base = rows[0]["figures"]
+    names = [n for n, (v, _) in base.items() if isinstance(v, float) and math.isfinite(v)]
+    keys = list(dict.fromkeys(r["key"] for r in rows[1:]))
+    if not names or not keys:
+        return None
+    fig = Figure(figsize=(6.0 * min(len(names), 3), 0.6 * len(keys) + 2.2 + 3.0 * ((len(names) - 1) // 3)),
+                 layout="constrained")
+    axes = fig.subplots((len(names) + 2) // 3, min(len(names), 3), squeeze=False).ravel()
+    for ax, name in zip(axes, names):
+        b = base[name][0]
+        spans = []
+        for key in keys:
+            vals = [(r["value"], *r["figures"][name]) for r in rows[1:] if r["key"] == key]
+            spans.append((key, vals))
+        spans.sort(key=lambda kv: max((abs(v - b) for _, v, _ in kv[1] if math.isfinite(v)), default=0))
+        for i, (_key, vals) in enumerate(spans):
+            finite = [(lab, v, se) for lab, v, se in vals if math.isfinite(v)]
+            if not finite:
+                continue
+            lo, hi = min(v for _, v, _ in finite), max(v for _, v, _ in finite)
+            ax.barh(i, hi - lo, left=lo, color="C0", alpha=0.5)
+            for lab, v, se in finite:
+                ax.errorbar(v, i, xerr=None if math.isnan(se) else se, fmt="o", color="C0", capsize=3)
+                ax.annotate(str(lab), (v, i), textcoords="offset points", xytext=(0, 6), ha="center",
+                            fontsize=7)
+        ax.axvline(b, color="k", lw=0.8)
+        ax.set_yticks(range(len(spans)), [k for k, _ in spans], fontsize=8)
+        ax.set_title(name, fontsize=9)
+    for ax in axes[len(names):]:
+        ax.set_visible(False)
+    fig.suptitle("sensitivity: each key varied alone (black line: baseline)", fontsize=10)
+    fig.savefig(path, dpi=120)
+    return path

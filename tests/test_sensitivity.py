@@ -1,0 +1,54 @@
+"""The sensitivity runner on a model whose figures are known in closed form."""
+
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+
+import pytest
+
+from latticeopt.errors import ParameterError
+from latticeopt.sensitivity import load_variants, parse_vary, plot_tornado, run_sensitivity, write_table
+from latticeopt.sweep import run_sweep
+
+STUDY = Path(__file__).resolve().parents[1] / "studies" / "sensitivity_press.toml"
+
+
+def press_model(design, phantom, settings) -> dict:
+    """TEST DOUBLE: V_rel = depth * (1 + w / 10) * mu_gel / 500 (+ 0.01 with a rim channel)."""
+    mu = settings.physics.get("hydrogel_shear_kPa", 5.0)
+    depth = phantom.touches[0].depth_mm
+    v = depth * (1 + design.width_mm / 10) * mu / 500 + (0.01 * depth if design.rim == "channel" else 0.0)
+    return {"v_rel": v, "forces_N": [0.0], "timings": {"double": 0.0}}
+
+
+def test_each_run_moves_the_figures_as_the_model_says(tmp_path):
+    runs = load_variants(STUDY, [parse_vary("hydrogel_shear_kPa=2,15"), parse_vary("rim=channel")],
+                         [f"out={(tmp_path / 'o').as_posix()}"])
+    assert [r[0] for r in runs] == ["baseline", "physics.hydrogel_shear_kPa=2", "physics.hydrogel_shear_kPa=15",
+                                    "design.rim=channel"]
+    rows = run_sensitivity(runs, lambda s: run_sweep(s, press_model, jobs=1, progress=False, outputs=False))
+    for r, mu, rim in zip(rows, (5.0, 2.0, 15.0, 5.0), (0, 0, 0, 1)):
+        v = {w: 4 * (1 + w / 10) * mu / 500 + 0.04 * rim for w in (0, 4, 6)}
+        fig = r["figures"]
+        assert fig["ratio w = 4 vs no lattice"][0] == pytest.approx(v[4] / v[0], rel=1e-12)
+        assert fig["ratio w = 4 vs w = 6"][0] == pytest.approx(v[4] / v[6], rel=1e-12)
+        assert math.isnan(fig["ratio w = 4 vs w = 6"][1])  # a press has no sampling error
+    table = write_table(rows, tmp_path / "s.csv")
+    with open(table) as fh:
+        assert [row["run"] for row in csv.DictReader(fh)] == [r[0] for r in runs]
+    assert plot_tornado(rows, tmp_path / "t.png").read_bytes()[:4] == b"\x89PNG"
+
+
+@pytest.mark.parametrize("text, match", [("hydrogel_shear_kPa", "KEY=V1,V2"), ("colour=1", "a dotted study key"),
+                                         ("rim=none,none", "distinct values")])
+def test_bad_vary_arguments(text, match):
+    with pytest.raises(ParameterError, match=match):
+        parse_vary(text)
+
+
+def test_bad_values_are_caught_before_any_run(tmp_path):
+    with pytest.raises(ParameterError, match="--vary design.rim"):
+        load_variants(STUDY, [parse_vary("rim=round")], [f"out={(tmp_path / 'o').as_posix()}"])
+    assert not (tmp_path / "o").exists()
