@@ -22,9 +22,9 @@ The rim: ``rim = "channel"`` lays a channel of width ``w / 2`` along the inside 
 boundary (for ``square`` with ``frame_mm = 0`` this is the half-width channel that the lines ``x, y = 0, L``
 leave inside the sensor); ``rim = "none"`` leaves the rim band silicone, apart from channels that end on it.
 ``frame_mm`` clips the lattice to the square inset by that width: a silicone border. Electrodes are joined
-to the lattice where they would touch no hydrogel (a frame, or a pattern whose channels miss an electrode)
-by straight *leads*: channels of width ``w`` along the wall normal from the electrode centre to the nearest
-hydrogel (``electrode_leads``; custom layouts get none).
+to the lattice where the channels miss them (a frame, or a pattern whose channels meet less than half of
+``min(w, electrode width)`` of an electrode) by straight *leads*: channels of width ``w`` along the wall normal
+from the electrode centre to the nearest hydrogel (``electrode_leads``; custom layouts get none).
 """
 
 from __future__ import annotations
@@ -184,13 +184,18 @@ def electrode_contact_mm(footprint, electrodes: np.ndarray) -> np.ndarray:
 
 
 def add_leads(footprint, electrodes: np.ndarray, width_mm: float, size_mm: float):
-    """Join every electrode that touches no hydrogel to the nearest hydrogel by a straight lead channel."""
+    """Join every electrode that the channels miss to the nearest hydrogel by a straight lead channel.
+
+    "Miss" means less than half of ``min(w, electrode width)`` of the electrode's width lies on hydrogel: a channel
+    grazing an electrode's corner would leave it connected through a sliver (a honeycomb edge at 0.07 mm of a
+    4 mm electrode, say), which no one would build.
+    """
     import shapely
 
     contact = electrode_contact_mm(footprint, electrodes)
     leads = []
-    for k, (cx, cy, _cz, nx, ny, _axis, _w, _h) in enumerate(electrodes):
-        if contact[k] > 1e-12 * size_mm or footprint.is_empty:
+    for k, (cx, cy, _cz, nx, ny, _axis, ew, _h) in enumerate(electrodes):
+        if contact[k] >= 0.5 * min(width_mm, ew) or footprint.is_empty:
             continue
         start = np.array([cx, cy])
         ray = shapely.LineString([start, start - size_mm * np.array([nx, ny])])
