@@ -150,7 +150,10 @@ class EvalSettings:
             # model's settings are known to be PhysicsSettings
             from .coupled import PhysicsSettings
 
-            resolved = PhysicsSettings.from_dict(physics)
+            try:
+                resolved = PhysicsSettings.from_dict(physics)
+            except ParameterError as exc:  # a combination PHYSICS_KEYS's per-key checks cannot see
+                raise ParameterError(f"physics.{exc.name}", exc.expected, exc.got) from None
             physics = {**resolved.as_dict(), "indent": resolved.indent_settings().as_dict()}
         return {"mesh": dataclasses.asdict(self.mesh), "physics": physics, "model": self.model,
                 "version": __version__}

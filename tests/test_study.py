@@ -212,6 +212,11 @@ def test_settings_key_changes_with_a_mesh_default_and_the_package_version(monkey
     assert EvalSettings().key != key
 
 
+def test_settings_the_default_model_rejects_are_named_by_their_physics_key():
+    with pytest.raises(ParameterError, match=r"^physics\.mechanics_rtol: .*0\.1"):
+        EvalSettings(physics_items=(("mechanics_rtol", 0.5),)).key  # noqa: B018 - the key resolves the settings
+
+
 def test_settings_key_of_a_custom_model_uses_its_table_as_given(monkeypatch):
     from latticeopt.mechanics import IndentSettings
 
