@@ -12,7 +12,7 @@ from .mesh.tetmesh import TetMesh
 
 log = logging.getLogger(__name__)
 
-REGION_COLOURS = {"substrate": "#d9d9d9", "hydrogel": "#2b7bba", "islands": "#f2f2f2", "sealing": "#ffe9b3"}
+REGION_COLOURS = {"substrate": "#c8c8c8", "hydrogel": "#2b7bba", "islands": "#e9e4d4", "sealing": "#ffe9b3"}
 
 
 def _grid(mesh: TetMesh, mask: np.ndarray):
@@ -21,6 +21,17 @@ def _grid(mesh: TetMesh, mask: np.ndarray):
     tets = mesh.tets[mask]
     cells = np.hstack([np.full((len(tets), 1), 4), tets]).ravel()
     return pv.UnstructuredGrid(cells, np.full(len(tets), pv.CellType.TETRA), mesh.nodes_mm)
+
+
+def _swatch(pv, colour: str):
+    """A filled square of ``colour`` as a legend symbol (VTK colours a symbol by its cell data)."""
+    import matplotlib.colors as mcolors
+
+    square = pv.Plane(i_resolution=1, j_resolution=1).triangulate()
+    rgb = (np.array(mcolors.to_rgb(colour)) * 255).astype(np.uint8)
+    square.cell_data["rgb"] = np.tile(rgb, (square.n_cells, 1))
+    square.cell_data.active_scalars_name = "rgb"
+    return square
 
 
 def render_mesh(mesh: TetMesh, path: str | Path, show_sealing: bool = False,
@@ -60,7 +71,7 @@ def _render(pv, mesh: TetMesh, path: Path, show_sealing: bool, window_size: tupl
             mask &= ~cutaway
         if mask.any():
             pl.add_mesh(_grid(mesh, mask), color=REGION_COLOURS[name], show_edges=True, edge_color="#555555",
-                        line_width=0.3, label=name)
+                        line_width=0.3)
     for k, tri in enumerate(mesh.electrode_facets()):
         if len(tri) == 0:
             continue
@@ -71,7 +82,21 @@ def _render(pv, mesh: TetMesh, path: Path, show_sealing: bool, window_size: tupl
         outward = np.sign(centre[:2] - L / 2) * (np.abs(centre[:2] - L / 2) > 0.45 * L)
         pl.add_point_labels([centre + np.r_[outward * 6, 0]], [str(k + 1)], font_size=14, point_size=1,
                             shape=None, text_color="#d62728", show_points=False, always_visible=True)
-    pl.add_legend(bcolor="white", size=(0.16, 0.12))
+    # A legend of solid swatches with dark text (VTK's default legend draws each entry in its own pale colour).
+    entries = [[f"silicone {name}" if name in ("islands", "substrate") else name, REGION_COLOURS[name]]
+               for name in ("hydrogel", "islands", "substrate") if np.any(mesh.region == REGION_IDS[name])]
+    entries.append(["electrodes", "#d62728"])
+    legend = pl.add_legend(entries, bcolor="#ffffff", border=True, size=(0.26, 0.13), face="rectangle",
+                           loc="upper left", font_family="arial")
+    for i, (_, colour) in enumerate(entries):  # dark text, coloured swatch
+        legend.SetEntryColor(i, 0.1, 0.1, 0.1)
+        legend.SetEntrySymbol(i, _swatch(pv, colour))
+    info = mesh.info.get("design", {})
+    if info:
+        pl.add_text(f"{info.get('pattern', 'square')} layout, w = {info.get('width_mm', 0):g} mm, "
+                    f"t = {info.get('thickness_mm', 0):g} mm, rim {info.get('rim', 'none')}; "
+                    f"{mesh.info.get('mesher', '')} mesh {mesh.n_nodes} nodes", position="lower_left",
+                    font_size=10, color="#222222")
     pl.camera_position = [(-0.55 * L, -1.25 * L, 1.2 * L), (0.5 * L, 0.5 * L, 0.0), (0, 0, 1)]
     pl.camera.zoom(1.15)
     path.parent.mkdir(parents=True, exist_ok=True)
