@@ -61,8 +61,10 @@ class PhysicsSettings:
         :class:`latticeopt.mechanics.IndentSettings`.
     silicone_shear_kPa, hydrogel_shear_kPa
         Initial shear moduli (kPa); sources in :mod:`latticeopt.mechanics.materials`.
-    poisson_ratio
-        Small-strain Poisson ratio of both materials.
+    hydrogel_poisson_ratio, silicone_poisson_ratio
+        Small-strain Poisson ratio of each material, ``0 <= nu < 0.5`` (0.5 itself would need an infinite bulk
+        modulus); 0.4999 (``kappa / mu = 5000``) is the undrained, practically incompressible limit the
+        mechanics is verified at (``docs/verification.md``).
     sigma_S_per_m
         Hydrogel conductivity (S/m); ``V_rel`` is independent of its scale except through ``z_c * sigma``.
     contact_impedance_ohm_m2
@@ -81,7 +83,8 @@ class PhysicsSettings:
     punch_edge: str = "conforming"
     silicone_shear_kPa: float = _SILICONE.shear_modulus_kPa
     hydrogel_shear_kPa: float = _GEL.shear_modulus_kPa
-    poisson_ratio: float = _SILICONE.poisson_ratio
+    hydrogel_poisson_ratio: float = _GEL.poisson_ratio
+    silicone_poisson_ratio: float = _SILICONE.poisson_ratio
     sigma_S_per_m: float = DEFAULT_SIGMA_S_PER_M
     contact_impedance_ohm_m2: float = DEFAULT_CONTACT_IMPEDANCE_OHM_M2
     current_A: float = DEFAULT_CURRENT_A
@@ -97,8 +100,8 @@ class PhysicsSettings:
         set_(self, "mechanics_rtol", v.real("mechanics_rtol", self.mechanics_rtol, lo=0, lo_open=True, hi=1e-1))
         set_(self, "contact_impedance_ohm_m2",
              v.real("contact_impedance_ohm_m2", self.contact_impedance_ohm_m2, lo=0))
-        set_(self, "poisson_ratio", v.real("poisson_ratio", self.poisson_ratio, lo=-1, hi=0.5, lo_open=True,
-                                           hi_open=True))
+        for name in ("hydrogel_poisson_ratio", "silicone_poisson_ratio"):
+            set_(self, name, v.real(name, getattr(self, name), lo=0, hi=0.5, hi_open=True))
 
     @classmethod
     def from_dict(cls, values: dict | None) -> PhysicsSettings:
@@ -110,8 +113,8 @@ class PhysicsSettings:
         return cls(**values)
 
     def indent_settings(self) -> IndentSettings:
-        materials = Materials(silicone=NeoHookean(self.silicone_shear_kPa, self.poisson_ratio),
-                              hydrogel=NeoHookean(self.hydrogel_shear_kPa, self.poisson_ratio))
+        materials = Materials(silicone=NeoHookean(self.silicone_shear_kPa, self.silicone_poisson_ratio),
+                              hydrogel=NeoHookean(self.hydrogel_shear_kPa, self.hydrogel_poisson_ratio))
         return IndentSettings(materials=materials, indenter=self.indenter, in_plane=self.in_plane,
                               punch_edge=self.punch_edge, rtol=self.mechanics_rtol)
 

@@ -51,34 +51,50 @@ def _string(name: str, value: object) -> str:
     return value
 
 
-def _positive(name: str, value: object) -> float:
-    return v.real(name, value, lo=0, lo_open=True)
+def _physics_settings():
+    # imported when first needed, not with this module: the coupled model pulls in the solvers (0.7 s)
+    from .coupled import PhysicsSettings
+
+    return PhysicsSettings
 
 
-def _non_negative(name: str, value: object) -> float:
-    return v.real(name, value, lo=0)
+def _physics_value(key: str, name: str, value: object) -> object:
+    """``value`` of ``[physics]`` key ``key`` as :class:`~latticeopt.coupled.PhysicsSettings` cleans it; a bad
+    value is reported under ``name`` with PhysicsSettings' own allowed values."""
+    try:
+        return getattr(_physics_settings()(**{key: value}), key)
+    except ParameterError as exc:
+        raise ParameterError(name, exc.expected, value) from None
 
 
-def _poisson(name: str, value: object) -> float:
-    return v.real(name, value, lo=0, hi=0.5, hi_open=True)
+class _PhysicsKeys(Mapping):
+    """``key -> checker(name, value)`` for every field of :class:`latticeopt.coupled.PhysicsSettings`.
+
+    The schema is PhysicsSettings itself (fields, defaults and ranges in its ``__post_init__``): a value is
+    checked by constructing PhysicsSettings with it, so the study file, ``--set physics.KEY`` and
+    ``--physics KEY=VALUE`` accept exactly what the model accepts.
+    """
+
+    def _names(self) -> tuple[str, ...]:
+        return tuple(f.name for f in dataclasses.fields(_physics_settings()))
+
+    def __getitem__(self, key: str) -> Callable[[str, object], object]:
+        if key not in self._names():
+            raise KeyError(key)
+        return lambda name, value: _physics_value(key, name, value)
+
+    def __iter__(self):
+        return iter(self._names())
+
+    def __len__(self) -> int:
+        return len(self._names())
 
 
-#: The keys a study's ``[physics]`` table accepts, each with its checker ``(name, value) -> clean value``.
-#: The table is passed to the model as a dict (:attr:`EvalSettings.physics`); the model applies its own
-#: defaults for keys a study leaves out. This is the one place to declare a new model setting.
-#: They are the fields of :class:`latticeopt.coupled.PhysicsSettings` (a test keeps the two in step).
-PHYSICS_KEYS: dict[str, Callable[[str, object], object]] = {
-    "indenter": _string,
-    "in_plane": _string,
-    "punch_edge": _string,
-    "silicone_shear_kPa": _positive,
-    "hydrogel_shear_kPa": _positive,
-    "poisson_ratio": _poisson,
-    "sigma_S_per_m": _positive,
-    "contact_impedance_ohm_m2": _non_negative,
-    "current_A": _positive,
-    "mechanics_rtol": _positive,
-}
+#: The keys a study's ``[physics]`` table accepts, each with its checker ``(name, value) -> clean value``:
+#: the fields of :class:`latticeopt.coupled.PhysicsSettings`, validated by it (declare a new model setting
+#: there). The table is passed to the model as a dict (:attr:`EvalSettings.physics`); the model applies its own
+#: defaults for keys a study leaves out.
+PHYSICS_KEYS: Mapping[str, Callable[[str, object], object]] = _PhysicsKeys()
 
 
 # -- settings handed to the model --------------------------------------------------------------------------

@@ -55,9 +55,9 @@ _JUMP_RTOL = 1e-3
 
 
 class _StepFailed(Exception):
-    def __init__(self, reason: str, residual: float, min_J: float):
+    def __init__(self, reason: str, residual: float, min_J: float, norms: tuple = ()):
         super().__init__(reason)
-        self.reason, self.residual, self.min_J = reason, residual, min_J
+        self.reason, self.residual, self.min_J, self.norms = reason, residual, min_J, norms
 
 
 class IndentationSolver:
@@ -100,8 +100,12 @@ class IndentationSolver:
         isD[(3 * self.bottom_nodes[:, None] + np.arange(3)).ravel()] = True
         self._zeroed_for = self._zeroed = None  # see _constrained
         # symbolic analysis only: every phantom factorizes its own tangent (same pattern)
-        self.linear = SymmetricSolver(self._matrix(self._ev0.data, isD), positive_definite="auto",
-                                      backend=settings.backend, factorize=False, precision=settings.precision)
+        # Cholesky: an indefinite tangent is reported (PARDISO error -4) and shifted in _factorize, so that every
+        # direct Newton increment is a descent direction of the energy
+        self.linear = SymmetricSolver(self._matrix(self._ev0.data, isD), positive_definite=True,
+                                      backend=settings.backend, factorize=False,
+                                      precision=settings.factorization_precision)
+        self._shift = 0.0  # relative diagonal shift of the current factorization (0: the tangent itself)
         self.setup_seconds = time.perf_counter() - t0
         log.info("indentation solver: %d dofs, %d nonzeros, %s, set up in %.2f s", n, self.op.nnz,
                  self.linear.backend, self.setup_seconds)
@@ -148,7 +152,7 @@ class IndentationSolver:
         s = self.settings
         touches = check_touches(touches, self.x_range, self.y_range, self.thickness_mm)
         self._clock = {"assembly": 0.0, "factorization": 0.0, "solve": 0.0, "krylov": 0.0}
-        self._n_krylov = 0
+        self._n_krylov = self._n_shifted = 0
         ref, self._op, ev = self.mesh.nodes_mm, self.op, self._ev0
         if s.indenter == "flat" and s.punch_edge == "conforming":
             ref = conform_punch_edges(self.mesh.nodes_mm, self.mesh.tets, self.mesh.facets["top"], self._movable,
@@ -178,6 +182,7 @@ class IndentationSolver:
                 cons.active = active
                 log.info("load step to %.3f mm failed (%s, residual %.3g N); halving", lam_new * d_max,
                          exc.reason, exc.residual)
+                log.debug("free-residual norms of the failed step: %s", exc.norms)
                 dlam *= 0.5
                 if dlam * d_max < s.min_step_mm:
                     inv = f"; an element inverted (min det F = {exc.min_J:.3g})" if exc.min_J <= 0 else ""
@@ -204,7 +209,8 @@ class IndentationSolver:
         clock["total"] = total
         clock["setup"] = self.setup_seconds
         stats = {"backend": self.linear.backend, "n_dofs": self.op.n_dofs, "nnz_upper": self.op.nnz,
-                 "n_factorizations": self._n_factor, "krylov_iterations": self._n_krylov, "method": s.method,
+                 "n_factorizations": self._n_factor, "shifted_factorizations": self._n_shifted,
+                 "krylov_iterations": self._n_krylov, "precision": self.linear.precision, "method": s.method,
                  "volumetric": s.volumetric, "indenter": s.indenter, "in_plane": s.in_plane, "punch_edge": s.punch_edge,
                  "moved_reference_nodes": n_moved, "contact_nodes": [int(len(n)) for n in cons.contact_nodes()]}
         return IndentationResult(
@@ -271,9 +277,9 @@ class IndentationSolver:
                 first = len(norms)  # the sphere's contact set changed: solve again, judging divergence afresh
                 continue
             if it == max_it:
-                raise _StepFailed(f"no convergence in {max_it} iterations", r_free, ev.min_J)
+                raise _StepFailed(f"no convergence in {max_it} iterations", r_free, ev.min_J, tuple(norms))
             if len(norms) > first + 3 and r_free > 1e3 * min(norms[first + 1:]):
-                raise _StepFailed("residual diverging", r_free, ev.min_J)
+                raise _StepFailed("residual diverging", r_free, ev.min_J, tuple(norms))
             stalled = since >= s.max_bfgs or (since >= 2 and r_free > 0.5 * norms[-3])
             # Newton: the load increment of a new step goes through the factorization of the last iterate of
             # the previous step (its tangent differs from the converged one by O(residual)): one factorization
@@ -346,8 +352,7 @@ class IndentationSolver:
         rhs[D] = ev.data[self.op.diag_pos[D]] * jump
         t = time.perf_counter()
         if refactor:
-            self.linear.refactor(self._matrix(ev.data, isD))
-            self._n_factor += 1
+            self._factorize(ev.data, isD)
         t1 = time.perf_counter()
         du = self.linear.solve(rhs).ravel()
         self._clock["factorization"] += t1 - t
@@ -355,6 +360,43 @@ class IndentationSolver:
         self._n_solves += 1
         du[D] = jump  # exact, whatever the solver's rounding
         return du
+
+    def _factorize(self, data: np.ndarray, isD: np.ndarray) -> None:
+        """Cholesky of the constrained tangent; if it is indefinite, of the tangent with its free diagonal
+        scaled by ``1 + sigma``, the smallest ``sigma`` of 1e-3, 1e-2, ... that is positive definite
+        (Levenberg-Marquardt; Nocedal and Wright, Numerical Optimization, 2006, Alg. 3.3).
+
+        Why: Newton iterates of a nearly incompressible stack leave the constraint surface at second order in
+        the step, and the large pressures that follow make the tangent indefinite between converged states
+        (at ``nu = 0.499``, w = 4, t = 3, a 4 mm press: up to 117 negative eigenvalues during the iterations of
+        a load step, none at its converged states). The unshifted increment is then not a descent direction
+        and the iterations wandered until the step was halved below ``min_step_mm``. The shifted increment
+        is one, so the energy line search always makes progress; near the solution the tangent is positive
+        definite again and Newton's fast convergence returns (no shift)."""
+        A = self._matrix(data, isD)
+        self._n_factor += 1
+        if self.linear.backend != "pardiso":  # LU factorizes indefinite matrices; no inertia to test
+            self.linear.refactor(A)
+            self._shift = 0.0
+            return
+        from pypardiso.pardiso_wrapper import PyPardisoError
+
+        diag = A.data[self.op.diag_pos].copy()
+        free = ~isD
+        for sigma in (0.0, 1e-3, 1e-2, 1e-1, 1.0, 10.0):
+            if sigma:
+                A.data[self.op.diag_pos[free]] = diag[free] * (1.0 + sigma)
+                self._n_factor += 1
+            try:
+                self.linear.refactor(A)
+            except PyPardisoError:
+                continue
+            self._shift = sigma
+            if sigma:
+                self._n_shifted += 1
+                log.debug("indefinite tangent: diagonal shifted by %g", sigma)
+            return
+        raise _StepFailed("tangent indefinite even with its diagonal shifted by 10", np.nan, np.nan)
 
     def _krylov_solve(self, ev: Evaluation, isD: np.ndarray, D: np.ndarray, jump: np.ndarray, R: np.ndarray,
                       rtol: float, atol: float) -> np.ndarray | None:
@@ -364,14 +406,20 @@ class IndentationSolver:
         t = time.perf_counter()
         b = self._free_rhs(ev, D, jump, R)
         b[D] = 0.0  # du = jump there exactly; GMRES solves for the free part
-        matvec = self._symmetric_operator(self._constrained(ev.data, isD))
+        data = self._constrained(ev.data, isD)
 
         def precondition(r):
             return self.linear.solve(r).ravel()
 
-        du, its, ok = gmres(matvec, b, precondition, max(rtol * float(np.linalg.norm(b)), atol),
-                            self.settings.max_krylov)
+        atol = max(rtol * float(np.linalg.norm(b)), atol)
+        du, its, ok = gmres(self._symmetric_operator(data), b, precondition, atol, self.settings.max_krylov)
         self._n_krylov += its
+        if ok and self._shift and not np.any(jump) and float(R @ du) >= 0.0:
+            # the latest tangent was indefinite and this Newton increment does not lower the energy: solve the
+            # shifted system the factorization belongs to instead (a descent direction)
+            data[self.op.diag_pos[~isD]] *= 1.0 + self._shift
+            du, its, ok = gmres(self._symmetric_operator(data), b, precondition, atol, self.settings.max_krylov)
+            self._n_krylov += its
         self._clock["krylov"] += time.perf_counter() - t
         if not ok:
             return None

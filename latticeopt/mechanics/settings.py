@@ -15,10 +15,13 @@ from .assembly import VOLUMETRIC
 from .indenters import IN_PLANE, INDENTERS, PUNCH_EDGES
 from .materials import Materials
 
-__all__ = ["METHODS", "PREDICTORS", "IndentSettings", "IndentationResult"]
+__all__ = ["DOUBLE_ABOVE_KAPPA_OVER_MU", "METHODS", "PREDICTORS", "IndentSettings", "IndentationResult"]
 
 PREDICTORS = ("secant", "tangent")
 METHODS = ("bfgs", "newton", "newton-krylov")
+#: ``precision="auto"`` factorizes in double precision when some material's ``kappa / mu`` exceeds this
+#: (``nu`` above about 0.4975; the default ``nu = 0.49`` has ``kappa / mu = 50`` and stays in single).
+DOUBLE_ABOVE_KAPPA_OVER_MU = 200.0
 
 
 @dataclass(frozen=True)
@@ -78,10 +81,15 @@ class IndentSettings:
     backend
         Sparse solver: ``"auto"`` (PARDISO if installed), ``"pardiso"`` or ``"scipy"``.
     precision
-        Factorization in ``"single"`` (default; PARDISO) or ``"double"`` precision (the tangent and residual
-        are always assembled in double). The factorization only steers the iterations; convergence is judged
-        on the double-precision residual, so the converged state is the same to ``rtol``
-        (``tests/test_mechanics_indent.py``), at about 0.55x the factorization time.
+        Factorization in ``"single"`` or ``"double"`` precision, or ``"auto"`` (default): single unless some
+        material's ``kappa / mu`` exceeds :data:`DOUBLE_ABOVE_KAPPA_OVER_MU` (the tangent and residual are always
+        assembled in double). The factorization only steers the iterations; convergence is judged on the
+        double-precision residual, so the converged state is the same to ``rtol``
+        (``tests/test_mechanics_indent.py``), at about 0.55x the factorization time. Near incompressibility
+        float32 is not enough: the tangent's condition number grows with ``kappa / mu`` and at ``nu = 0.499``
+        (``kappa / mu = 500``) single-precision Cholesky of the converged, positive definite tangent of the
+        w = 4, t = 3 press already failed (a spurious negative pivot; its LDL^T reported 4 negative
+        eigenvalues where the double-precision one reported none) and the press stalled at 3.75 mm.
     """
 
     materials: Materials = field(default_factory=Materials)
@@ -101,7 +109,7 @@ class IndentSettings:
     max_krylov: int = 16
     predictor: str = "tangent"
     backend: str = "auto"
-    precision: str = "single"
+    precision: str = "auto"
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -112,7 +120,7 @@ class IndentSettings:
         set_(self, "punch_edge", v.choice("punch_edge", self.punch_edge, PUNCH_EDGES))
         set_(self, "volumetric", v.choice("volumetric", self.volumetric, VOLUMETRIC))
         set_(self, "backend", v.choice("backend", self.backend, BACKENDS))
-        set_(self, "precision", v.choice("precision", self.precision, PRECISIONS))
+        set_(self, "precision", v.choice("precision", self.precision, PRECISIONS + ("auto",)))
         set_(self, "max_step_mm", v.real("max_step_mm", self.max_step_mm, lo=0, lo_open=True))
         set_(self, "min_step_mm", v.real("min_step_mm", self.min_step_mm, lo=0, lo_open=True, hi=self.max_step_mm))
         set_(self, "max_newton", v.integer("max_newton", self.max_newton, lo=1, hi=200))
@@ -127,6 +135,15 @@ class IndentSettings:
 
     def as_dict(self) -> dict:
         return dataclasses.asdict(self)
+
+    @property
+    def factorization_precision(self) -> str:
+        """``precision`` with ``"auto"`` resolved against the materials' ``kappa / mu``."""
+        if self.precision != "auto":
+            return self.precision
+        m = self.materials
+        ratio = max(mat.kappa_MPa / mat.mu_MPa for mat in (m.silicone, m.hydrogel))
+        return "double" if ratio > DOUBLE_ABOVE_KAPPA_OVER_MU else "single"
 
 
 @dataclass(frozen=True, eq=False)
