@@ -403,6 +403,32 @@ def test_a_bug_in_the_model_stops_the_optimization(tmp_path):
         assert store.rows() and all(e.ok for e in store.rows())  # never stored as a failed phantom
 
 
+def rim_failing_evaluate(design, phantom, settings) -> dict:
+    """TEST DOUBLE: analytic_evaluate, but every phantom fails for the rim-channel layout (or for every layout
+    when ``$LATTICEOPT_TEST_OPT_FAIL_PHANTOM`` is ``"*"``)."""
+    if design.rim == "channel" or os.environ.get(FAIL_ENV) == "*":
+        raise ConvergenceError("fake: this layout never converges")
+    return analytic_evaluate(design, phantom, settings)
+
+
+def test_a_category_where_everything_fails_does_not_hide_the_others(tmp_path):
+    path = _write(tmp_path, max_evals=6, extra='[optimize.categories]\nrim = ["none", "channel"]\n')
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(TESTS), os.environ.get("PYTHONPATH", "")])}
+    cmd = [sys.executable, "-m", "latticeopt", "optimize", str(path), "--quiet", "--evaluate",
+           "test_optimize:rim_failing_evaluate"]
+    done = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert "category rim-channel: every one of" in done.stdout
+    ranked = done.stdout.split("categories ranked")[1]
+    assert "rim-none: score" in ranked and "rim-channel: no feasible design" in ranked
+    done = subprocess.run(cmd + ["--out", str(tmp_path / "all_fail")], env={**env, FAIL_ENV: "*"},
+                          capture_output=True, text=True, timeout=300)
+    # the per-phantom warnings come first; the error itself is the last line, no traceback
+    assert done.returncode == 1 and "Traceback" not in done.stderr, done.stderr
+    assert done.stderr.splitlines()[-1].startswith("latticeopt optimize: failed: every phantom evaluation failed in "
+                                                   "every category")
+
+
 def test_optimization_refuses_a_locked_folder(tmp_path):
     path = _write(tmp_path)
     holder = subprocess.Popen([sys.executable, "-c", "import sys\nfrom latticeopt.store import folder_lock\n"

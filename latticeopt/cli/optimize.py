@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from ._common import check_parallel_args, study_overrides
+from ._common import add_physics_arg, check_parallel_args, physics_overrides, study_overrides
 
 
 def register(sub) -> None:
@@ -22,6 +22,7 @@ def register(sub) -> None:
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override a study key, dotted for tables, value in TOML syntax "
                         "(e.g. --set optimize.algorithm=LN_COBYLA --set optimize.max_evals=20); repeatable")
+    add_physics_arg(p)  # same as --set physics.KEY=VALUE, checked and named as --physics KEY
     p.add_argument("--jobs", "-j", type=int, default=None,
                    help="worker processes for the phantoms of each design (default: the study's jobs)")
     p.add_argument("--backend", choices=("local", "dask"), default="local",
@@ -48,10 +49,11 @@ def _step_line(step) -> str:
 
 def run_optimize_command(args: argparse.Namespace) -> int:
 
+    from ..errors import AllFailedError
     from ..optimize import effective_bounds_text, load_categories, run_optimization
     from ..optimize.categories import write_summary
 
-    runs = load_categories(args.study, study_overrides(args))
+    runs = load_categories(args.study, study_overrides(args) + physics_overrides(args))
     check_parallel_args(args)
     if args.dry_run:
         for run in runs:
@@ -67,12 +69,20 @@ def run_optimize_command(args: argparse.Namespace) -> int:
                 print(f"bound tightened: {t}")
         return 0
     callback = None if args.quiet else (lambda step: print(_step_line(step), flush=True))
-    pairs = []
+    pairs, all_failed = [], []
     for run in runs:
         if run.label:
             print(f"== category {run.label} ==", flush=True)
-        result = run_optimization(run.optimization, jobs=args.jobs, backend=args.backend,
-                                  scheduler=args.scheduler, callback=callback)
+        try:
+            result = run_optimization(run.optimization, jobs=args.jobs, backend=args.backend,
+                                      scheduler=args.scheduler, callback=callback)
+        except AllFailedError as exc:
+            if len(runs) == 1:
+                raise
+            # one category the model cannot evaluate at all must not hide the others: rank them, fail at the end
+            print(f"category {run.label}: {exc}", flush=True)
+            result = exc.result
+            all_failed.append(run.label)
         print(f"{len(result.history)} calls, {result.computed} phantoms computed, {result.seconds:.1f} s")
         for line in result.report:
             print(line)
@@ -83,4 +93,6 @@ def run_optimize_command(args: argparse.Namespace) -> int:
         out = runs[0].optimization.study.out_dir.parent
         for line in write_summary(pairs, out / "categories.csv"):
             print(line)
+        if len(all_failed) == len(runs):
+            raise AllFailedError(f"every phantom evaluation failed in every category ({', '.join(all_failed)})")
     return 0
