@@ -174,3 +174,43 @@ def check_parallel_args(args: argparse.Namespace) -> None:
         raise ParameterError("--jobs", "an integer >= 1", args.jobs)
     if args.scheduler is not None and args.backend != "dask":
         raise ParameterError("--scheduler", "no scheduler unless --backend dask", args.scheduler)
+
+
+# -- [physics] keys from the command line ------------------------------------------------------------------
+def add_physics_arg(parser) -> None:
+    """``--physics KEY=VALUE`` (repeatable): any ``[physics]`` key of a study (docs/studies.md)."""
+    parser.add_argument("--physics", dest="physics", action="append", default=[], metavar="KEY=VALUE",
+                        help="set a [physics] model key, value in TOML syntax (e.g. --physics "
+                             "hydrogel_poisson_ratio=0.4999 --physics indenter=sphere); repeatable; "
+                             "keys: docs/studies.md")
+
+
+def physics_from_args(args: argparse.Namespace) -> dict:
+    """The ``--physics`` values as ``{key: value}``, each checked by :class:`latticeopt.coupled.PhysicsSettings`.
+
+    Called before any meshing. A malformed item, an unknown key or a bad value raises
+    :class:`~latticeopt.errors.ParameterError` named ``--physics KEY`` with the allowed values.
+    """
+    import tomllib
+
+    from ..study import PHYSICS_KEYS
+
+    out = {}
+    for text in getattr(args, "physics", None) or []:
+        key, sep, raw = str(text).partition("=")
+        key = key.strip()
+        if not sep or not key:
+            raise ParameterError("--physics", "KEY=VALUE with KEY one of " + ", ".join(PHYSICS_KEYS), text)
+        if key not in PHYSICS_KEYS:
+            raise ParameterError(f"--physics {key}", "a key among " + ", ".join(PHYSICS_KEYS), key)
+        try:
+            value = tomllib.loads(f"v = {raw.strip()}")["v"]
+        except tomllib.TOMLDecodeError:
+            value = raw.strip()  # a bare word (flat, sphere): a string
+        out[key] = PHYSICS_KEYS[key](f"--physics {key}", value)
+    return out
+
+
+def physics_overrides(args: argparse.Namespace) -> list[str]:
+    """``--physics KEY=VALUE`` as the study overrides ``physics.KEY=VALUE`` (sweep and optimize), checked first."""
+    return [f"physics.{k}={json.dumps(v)}" for k, v in physics_from_args(args).items()]

@@ -7,11 +7,13 @@ import time
 from ._common import (
     add_design_args,
     add_mesh_args,
+    add_physics_arg,
     add_touch_args,
     design_from_args,
     emit_json,
     mesh_from_args,
     parse_output,
+    physics_from_args,
     touches_from_args,
 )
 
@@ -25,20 +27,30 @@ def register(sub) -> None:
     g = p.add_argument_group("indentation")
     add_touch_args(g)
     g.add_argument("--max-step", type=float, default=None, help="largest depth increment per load step (mm)")
+    add_physics_arg(g)
     p.add_argument("-o", "--output", default=None, help="write the deformed mesh as VTU (ParaView)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of text")
     p.set_defaults(func=run_indent)
 
 
 def run_indent(args) -> int:
-    from ..mechanics import IndentSettings, indent
+    import dataclasses
+
+    from ..coupled import PhysicsSettings
+    from ..mechanics import indent
 
     out = parse_output(args.output, (".vtu",))
     design = design_from_args(args)
     touches = touches_from_args(args, design)
+    # the mechanics of the [physics] settings (materials, indenter); the standalone indentation keeps its own
+    # tolerance unless --physics mechanics_rtol=... is given
+    physics = physics_from_args(args)
+    given = {"indenter": args.indenter, "in_plane": args.in_plane, "punch_edge": args.punch_edge}
+    settings = PhysicsSettings(**{**given, **physics}).indent_settings()
     extra = {} if args.max_step is None else {"max_step_mm": args.max_step}
-    settings = IndentSettings(indenter=args.indenter, in_plane=args.in_plane, punch_edge=args.punch_edge,
-                              **extra)
+    if "mechanics_rtol" not in physics:
+        extra["rtol"] = type(settings)().rtol
+    settings = dataclasses.replace(settings, **extra)
     t0 = time.perf_counter()
     mesh = mesh_from_args(args)
     t_mesh = time.perf_counter() - t0

@@ -7,10 +7,12 @@ import time
 from ._common import (
     add_design_args,
     add_mesh_args,
+    add_physics_arg,
     add_touch_args,
     design_from_args,
     emit_json,
     mesh_settings_from_args,
+    physics_from_args,
     touches_from_args,
 )
 
@@ -29,6 +31,7 @@ def register(sub) -> None:
     g.add_argument("--sigma", type=float, default=d.sigma_S_per_m, help="hydrogel conductivity (S/m)")
     g.add_argument("--contact-impedance", type=float, default=d.contact_impedance_ohm_m2,
                    help="electrode contact impedance (ohm m^2)")
+    add_physics_arg(g)
     p.add_argument("--json", action="store_true", help="print one JSON object instead of text")
     p.set_defaults(func=run_simulate)
 
@@ -38,9 +41,10 @@ def run_simulate(args) -> int:
 
     design = design_from_args(args)
     touches = touches_from_args(args, design)
-    physics = PhysicsSettings(indenter=args.indenter, in_plane=args.in_plane, punch_edge=args.punch_edge,
-                              sigma_S_per_m=args.sigma,
-                              contact_impedance_ohm_m2=args.contact_impedance)
+    # the dedicated options first, then any --physics KEY=VALUE (checked here, before any meshing)
+    given = {"indenter": args.indenter, "in_plane": args.in_plane, "punch_edge": args.punch_edge,
+             "sigma_S_per_m": args.sigma, "contact_impedance_ohm_m2": args.contact_impedance}
+    physics = PhysicsSettings(**{**given, **physics_from_args(args)})
     settings = mesh_settings_from_args(args)
     t0 = time.perf_counter()
     model = CoupledModel(design, settings, physics, cache_dir=False if args.no_cache else args.cache_dir)

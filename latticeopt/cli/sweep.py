@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from ._common import check_parallel_args, study_overrides
+from ._common import add_physics_arg, check_parallel_args, physics_overrides, study_overrides
 
 
 def register(sub) -> None:
@@ -17,6 +17,7 @@ def register(sub) -> None:
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override a study key; dotted for tables, value in TOML syntax "
                         "(e.g. --set mesh.size_mm=3 --set grid.width_mm=[0,4]); repeatable")
+    add_physics_arg(p)  # same as --set physics.KEY=VALUE, checked and named as --physics KEY
     p.add_argument("--jobs", "-j", type=int, default=None, help="worker processes (default: the study's jobs)")
     p.add_argument("--backend", choices=("local", "dask"), default="local",
                    help="local processes (default) or a dask.distributed cluster")
@@ -40,7 +41,7 @@ def run_sweep_command(args: argparse.Namespace) -> int:
     from ..study import load_study
     from ..sweep import run_sweep
 
-    study = load_study(args.study, study_overrides(args))
+    study = load_study(args.study, study_overrides(args) + physics_overrides(args))
     check_parallel_args(args)
     if args.dry_run:
         stored = 0

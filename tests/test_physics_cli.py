@@ -1,0 +1,75 @@
+"""``--physics KEY=VALUE`` on every simulating command: checked by PhysicsSettings before any meshing."""
+
+import json
+
+import pytest
+
+import latticeopt.coupled
+import latticeopt.mesh
+from latticeopt.cli import main
+
+COARSE = ["--sensor-size", "50", "--size", "5", "--no-cache"]
+
+
+@pytest.mark.parametrize("command", [
+    ["indent", "--touch", "25,25,7.5,1", *COARSE],
+    ["simulate", "--touch", "25,25,7.5,1", *COARSE],
+    ["sweep", "studies/quick.toml", "--dry-run"],
+    ["optimize", "studies/optimize_square.toml", "--dry-run"],
+])
+@pytest.mark.parametrize("item, fragments", [
+    ("hydrogel_poisson_ratio=0.5", ["--physics hydrogel_poisson_ratio", "< 0.5", "got 0.5"]),
+    ("silicone_poisson_ratio=high", ["--physics silicone_poisson_ratio", "a real number", "'high'"]),
+    ("poisson_ratio=0.49", ["--physics poisson_ratio", "hydrogel_poisson_ratio", "got 'poisson_ratio'"]),
+    ("indenter=cone", ["--physics indenter", "'flat', 'sphere'", "'cone'"]),
+    ("0.4999", ["--physics", "KEY=VALUE", "'0.4999'"]),
+])
+def test_bad_physics_is_one_line_exit_2_before_meshing(capsys, monkeypatch, command, item, fragments):
+    def no_meshing(*a, **k):  # the check must come first
+        raise AssertionError("meshed before checking --physics")
+
+    for module in (latticeopt.mesh, latticeopt.coupled):
+        monkeypatch.setattr(module, "mesh_design", no_meshing)
+    code = main([*command, "--physics", item])
+    err = capsys.readouterr().err
+    assert code == 2, err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
+    for f in fragments:
+        assert f in err, (f, err)
+
+
+def test_simulate_takes_physics_keys(capsys):
+    args = ["simulate", "--touch", "25,25,7.5,1", "--json", *COARSE]
+    assert main(args) == 0
+    soft = json.loads(capsys.readouterr().out)
+    assert main([*args, "--physics", "hydrogel_shear_kPa=2.5", "--physics", "hydrogel_poisson_ratio=0.4999",
+                 "--physics", "indenter=sphere"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["physics"]["hydrogel_poisson_ratio"] == 0.4999 and out["physics"]["hydrogel_shear_kPa"] == 2.5
+    assert out["physics"]["indenter"] == "sphere" and soft["physics"]["indenter"] == "flat"
+    assert out["v_rel"] != soft["v_rel"]
+
+
+def test_indent_takes_physics_keys(capsys):
+    args = ["indent", "--touch", "25,25,7.5,1", "--json", *COARSE]
+    assert main(args) == 0
+    base = json.loads(capsys.readouterr().out)
+    # a stiffer silicone needs more force for the same depth
+    assert main([*args, "--physics", "silicone_shear_kPa=46"]) == 0
+    stiff = json.loads(capsys.readouterr().out)
+    assert stiff["forces_N"][0] > 1.5 * base["forces_N"][0]
+
+
+def test_sweep_maps_physics_onto_set(capsys, tmp_path):
+    from latticeopt.cli._common import physics_overrides
+    from latticeopt.study import load_study
+
+    class Args:
+        physics = ["hydrogel_poisson_ratio=0.4999", "indenter=sphere"]
+
+    overrides = physics_overrides(Args())
+    assert overrides == ['physics.hydrogel_poisson_ratio=0.4999', 'physics.indenter="sphere"']
+    study = load_study("studies/quick.toml", overrides)
+    assert study.settings.physics == {"hydrogel_poisson_ratio": 0.4999, "indenter": "sphere"}
+    assert main(["sweep", "studies/quick.toml", "--dry-run", "--physics", "hydrogel_poisson_ratio=0.4999",
+                 "--out", str(tmp_path)]) == 0
