@@ -153,9 +153,10 @@ def _jsonable(obj):
 
 
 def emit_json(obj: dict) -> None:
-    """Print one JSON object on stdout."""
-    json.dump(_jsonable(obj), sys.stdout)
-    sys.stdout.write("\n")
+    """Print one JSON object on stdout (strict JSON: a NaN or infinite value is printed as ``null``)."""
+    from .._jsonout import dumps
+
+    sys.stdout.write(dumps(_jsonable(obj)) + "\n")
 
 
 def study_overrides(args: argparse.Namespace) -> list[str]:

@@ -11,13 +11,13 @@ Torch is imported inside the functions, so importing this module does not need i
 
 from __future__ import annotations
 
-import json
 import logging
 from pathlib import Path
 
 import numpy as np
 
 from .. import _validate as v
+from .._jsonout import dumps
 from ..errors import ParameterError
 from .trajectories import GESTURES, N_FRAMES
 
@@ -151,7 +151,7 @@ def train_gesture_models(data, test, out_dir: str | Path, *, epochs: int = 100, 
         summary["models"][key] = entry
         log.info("%s: best epoch %d, validation accuracy %.4f, test accuracy %.4f", key, result.best_epoch,
                  val_rep["accuracy"], rep["accuracy"])
-    (out / "summary.json").write_text(json.dumps(summary, indent=1, default=float))
+    (out / "summary.json").write_text(dumps(summary, indent=1, default=float))
     (out / "report.md").write_text(report_markdown(summary))
     return summary
 
