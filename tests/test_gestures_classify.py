@@ -157,3 +157,41 @@ def test_classify_train_cli_rejects_a_bad_sensor_model(tmp_path, capsys):
     (tmp_path / "bad.npz").write_bytes(b"garbage")
     assert main(["classify-train", "--model", str(tmp_path / "bad.npz"), "--no-progress"]) == 2
     assert "--model" in capsys.readouterr().err
+
+
+def _reject_constant(name):
+    raise ValueError(f"not JSON: {name}")
+
+
+def test_classify_train_cli_caches_in_the_user_cache_folder_only(setup, tmp_path, monkeypatch, capsys):
+    work, cache_home = tmp_path / "work", tmp_path / "xdg"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(cache_home))
+    monkeypatch.setenv("HOME", str(tmp_path / "home"))
+    code = main(["classify-train", "--model", str(setup["sensor"]), "--per-class", str(PER_CLASS),
+                 "--test-per-class", str(TEST_PER_CLASS), "--epochs", "1", "--out", str(tmp_path / "run"),
+                 "--no-progress"])
+    capsys.readouterr()
+    assert code == 0
+    assert list(work.iterdir()) == []  # no ./gesture_cache, no temporary files
+    cached = sorted(p.name for p in (cache_home / "latticeopt" / "gestures").iterdir())
+    assert len(cached) == 2 and all(n.startswith("gestures-") and n.endswith(".npz") for n in cached)
+    # summary.json is strict JSON (null, never NaN)
+    json.loads((tmp_path / "run" / "summary.json").read_text(), parse_constant=_reject_constant)
+
+
+def test_classify_train_help_states_the_cache_folder(monkeypatch, tmp_path, capsys):
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    with pytest.raises(SystemExit):
+        main(["classify-train", "--help"])
+    text = "".join(capsys.readouterr().out.split())  # argparse wraps lines at spaces, never inside a path
+    assert str(tmp_path / "xdg" / "latticeopt" / "gestures") in text
+
+
+def test_training_summary_writes_null_for_undefined_metrics(tmp_path):
+    from latticeopt._jsonout import dumps
+
+    text = dumps({"val_accuracy": float("nan"), "history": [1.0, float("inf")], "n": np.int64(2)}, indent=1)
+    assert json.loads(text, parse_constant=_reject_constant) == {"val_accuracy": None, "history": [1.0, None],
+                                                                  "n": 2}

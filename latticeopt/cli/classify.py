@@ -31,8 +31,9 @@ def register(sub) -> None:
                    help="measurement SNR range in dB (default 40 60)")
     p.add_argument("--jobs", "-j", type=int, default=1, help="simulation worker processes (default 1)")
     p.add_argument("--threads", type=int, default=1, help="torch threads while training (default 1)")
-    p.add_argument("--cache-dir", type=Path, default=Path("gesture_cache"),
-                   help="folder of cached simulated datasets (default ./gesture_cache)")
+    p.add_argument("--cache-dir", type=Path, default=None,
+                   help="folder of cached simulated datasets, keyed by content hash (default "
+                        f"{_default_cache_dir()}: the user cache folder, never the working directory)")
     p.add_argument("--no-cache", action="store_true", help="neither read nor write the dataset cache")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.set_defaults(func=run_classify_train)
@@ -49,6 +50,12 @@ def register(sub) -> None:
                    help="no-touch voltages (104,) or (k, 104): --frames are then raw voltages in the same unit")
     c.add_argument("--json", action="store_true", help="print one JSON object instead of lines")
     c.set_defaults(func=run_classify)
+
+
+def _default_cache_dir() -> Path:
+    from ..gestures.simulate import default_cache_dir
+
+    return default_cache_dir()
 
 
 def _load_npy(path: str, flag: str):
@@ -106,7 +113,7 @@ def run_classify_train(args) -> int:
         raise ParameterError("--out", "a folder (created if missing)", args.out)
     require_torch()
     model = _sensor_model(args.model)
-    cache = None if args.no_cache else args.cache_dir
+    cache = None if args.no_cache else (args.cache_dir or _default_cache_dir())
     progress = not args.no_progress
     data = generate_gestures(model, per_class, seed=seed, pool="trainval", measurement=measurement, jobs=jobs,
                              progress=progress, cache_dir=cache)

@@ -244,6 +244,15 @@ class GestureDataset:
                         f"a gesture dataset file ({DATASET_FORMAT} version <= {DATASET_VERSION})")
 
 
+def default_cache_dir() -> Path:
+    """Folder of ``latticeopt classify-train``'s cached datasets: ``platformdirs.user_cache_dir("latticeopt")
+    / "gestures"`` (``~/.cache/latticeopt/gestures`` on Linux, under ``$XDG_CACHE_HOME`` if set), beside the
+    mesh cache, so runs from any working directory share it and none writes into that directory."""
+    import platformdirs
+
+    return Path(platformdirs.user_cache_dir("latticeopt")) / "gestures"
+
+
 def dataset_key(model, per_class: int, seed: int, pool: str, gcfg: GestureConfig, mcfg: MeasurementConfig,
                 classes: tuple = tuple(range(len(GESTURES)))) -> str:
     """Content hash of everything a dataset depends on (the cache file name)."""
@@ -279,7 +288,8 @@ def generate_gestures(model, per_class: int = 1000, *, seed: int = 0, pool: str 
     progress
         tqdm progress bar over sequences.
     cache_dir
-        Folder of cached datasets (``gestures-<content hash>.npz``); ``None`` = no cache.
+        Folder of cached datasets (``gestures-<content hash>.npz``); ``None`` = no cache (the command line
+        passes :func:`default_cache_dir`).
     block
         Sequences per task (distinct images are solved once per block).
     simulator
