@@ -56,12 +56,13 @@ def test_quick_has_the_same_grid_and_shares_phantoms_with_paper():
 
 def test_paper_press():
     s = load_study(STUDIES / "paper_press.toml")
-    assert s.kind == "press" and [d.width_mm for d in s.designs] == [0, 4, 6]
+    assert s.kind == "press" and [(d.rim, d.width_mm) for d in s.designs] == [
+        (rim, w) for rim in ("none", "channel") for w in (0, 4, 6)]  # both rim layouts
     assert {d.thickness_mm for d in s.designs} == {3.0}
     assert {(t.radius_mm, t.x_mm, t.y_mm) for p in s.phantoms for t in p.touches} == {(8.75, 50.0, 50.0)}
     depths = [p.touches[0].depth_mm for p in s.phantoms]
     assert depths[0] == 0.0 and depths[-1] == 4.0 and depths == sorted(depths)
-    assert [c.reference for c in s.phantom_set.compare] == [1.85, 1.13]
+    assert [c.reference for c in s.phantom_set.compare] == [1.85, 1.13] * 2  # the paper's ratios, per rim layout
 
 
 def test_tasks_are_design_major(tmp_path):
