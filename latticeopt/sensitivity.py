@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .design import TABLE_KEYS
-from .errors import ParameterError
+from .errors import AllFailedError, ParameterError
 from .study import Study, load_study
 
 __all__ = ["Variation", "load_variants", "parse_vary", "run_sensitivity", "plot_tornado", "write_table"]
@@ -128,7 +128,12 @@ def run_sensitivity(runs, run: Callable[[Study], object], progress: Callable[[st
     for label, key, value, study in runs:
         if progress is not None:
             progress(f"== {label} ==")
-        res = run(study)
+        try:
+            res = run(study)
+        except AllFailedError as exc:  # this input breaks every phantom: a finding, not a reason to stop
+            rows.append({"run": label, "key": key, "value": value, "figures": {}, "failed": study.n_tasks,
+                         "error": str(exc)})
+            continue
         rows.append({"run": label, "key": key, "value": value, "figures": figures(study, res.evaluations),
                      "failed": sum(not e.ok for e in res.evaluations)})
     return rows

@@ -52,3 +52,22 @@ def test_bad_values_are_caught_before_any_run(tmp_path):
     with pytest.raises(ParameterError, match="--vary design.rim"):
         load_variants(STUDY, [parse_vary("rim=round")], [f"out={(tmp_path / 'o').as_posix()}"])
     assert not (tmp_path / "o").exists()
+
+
+def failing_with_soft_gel(design, phantom, settings) -> dict:
+    """TEST DOUBLE: every press fails when the gel is softer than 3 kPa (a ModelFailure, as the mechanics would)."""
+    from latticeopt.errors import ConvergenceError
+
+    if settings.physics.get("hydrogel_shear_kPa", 5.0) < 3:
+        raise ConvergenceError("test double: no convergence")
+    return press_model(design, phantom, settings)
+
+
+def test_an_input_that_fails_every_press_is_reported_not_fatal(tmp_path):
+    runs = load_variants(STUDY, [parse_vary("hydrogel_shear_kPa=2,15")], [f"out={(tmp_path / 'o').as_posix()}"])
+    rows = run_sensitivity(runs, lambda s: run_sweep(s, failing_with_soft_gel, jobs=1, progress=False,
+                                                     outputs=False))
+    assert [r["failed"] for r in rows] == [0, 6, 0]  # 3 designs x 2 depths, all failed: the run goes on
+    assert rows[1]["figures"] == {} and rows[2]["figures"]
+    write_table(rows, tmp_path / "s.csv")
+    plot_tornado(rows, tmp_path / "t.png")
