@@ -171,7 +171,7 @@ def plot_tornado(rows: Sequence[dict], path: Path) -> Path | None:
         b = base[name][0]
         spans = []
         for key in keys:
-            vals = [(r["value"], *r["figures"][name]) for r in rows[1:] if r["key"] == key]
+            vals = [(r["value"], *r["figures"].get(name, (math.nan, math.nan))) for r in rows[1:] if r["key"] == key]
             spans.append((key, vals))
         spans.sort(key=lambda kv: max((abs(v - b) for _, v, _ in kv[1] if math.isfinite(v)), default=0))
         for i, (_key, vals) in enumerate(spans):
