@@ -12,6 +12,37 @@ from latticeopt.sensor_model import SensorSimulator, load_sensor_model
 COARSE = ["--width", "4", "--thickness", "3", "--size", "5", "--no-cache"]
 
 
+def _reject_constant(name):
+    raise ValueError(f"not JSON: {name}")
+
+
+@pytest.fixture
+def saved_figures(monkeypatch):
+    """Every matplotlib figure saved during the test, in order (to check layout and colour bars)."""
+    from matplotlib.figure import Figure
+
+    figures = []
+    original = Figure.savefig
+
+    def record(self, *args, **kwargs):
+        figures.append(self)
+        return original(self, *args, **kwargs)
+
+    monkeypatch.setattr(Figure, "savefig", record)
+    return figures
+
+
+def _colorbars(fig):
+    return [ax for ax in fig.axes if ax.get_label() == "<colorbar>"]
+
+
+def _inside(fig, artist) -> bool:
+    fig.canvas.draw()  # lay out again at the figure's own dpi (savefig drew it at another)
+    renderer = fig.canvas.get_renderer()
+    box, page = artist.get_window_extent(renderer), fig.bbox
+    return box.x0 >= page.x0 - 1 and box.x1 <= page.x1 + 1 and box.y0 >= page.y0 - 1 and box.y1 <= page.y1 + 1
+
+
 @pytest.fixture(scope="module")
 def model_path(tmp_path_factory):
     path = tmp_path_factory.mktemp("cli") / "sensor.npz"
@@ -82,13 +113,73 @@ def test_train_then_evaluate_every_method(model_path, tmp_path, capsys):
     net, ds, fig = tmp_path / "net.npz", tmp_path / "ds.npz", tmp_path / "cmp.png"
     assert main(["recon-train", "--model", str(model_path), "--per-count", "10", "--touch-counts", "1,2",
                  "--dataset", str(ds), "--epochs", "2", "--threads", "1", "-o", str(net)]) == 0
-    text = capsys.readouterr().out
+    captured = capsys.readouterr()
+    text = captured.out
     assert "simulated test set" in text and "paper (real data" in text and ds.exists()
+    # what it does before the progress bars (on stderr, stdout keeps the results)
+    assert "building the dataset: 10 samples for each of 2 touch counts" in captured.err
+    assert "preparing 14 training samples x 8" in captured.err
     assert main(["recon-eval", "--model", str(model_path), "--dataset", str(ds), "--net", str(net),
                  "--prior", "noser,laplacian", "--gn-per-count", "1", "--figure", str(fig), "--json"]) == 0
-    out = json.loads(capsys.readouterr().out)
+    out = json.loads(capsys.readouterr().out, parse_constant=_reject_constant)  # strict JSON: null, never NaN
+    assert out["methods"]["background"]["overall"]["cc"] is None  # the correlation of a constant image
     names = set(out["methods"])
     assert names == {"background", "tikhonov/noser", "tikhonov/laplacian", "gn/noser", "gn/laplacian", "dnn"}
     assert out["methods"]["gn/noser"]["n"] == 2 and out["methods"]["dnn"]["n"] == 2  # 10 % of 10 per count
     assert set(out["methods"]["dnn"]["by_touches"]) == {"1", "2"}
     assert fig.stat().st_size > 10_000
+
+
+def test_reconstruct_figure_has_truth_beside_the_image_with_colour_bars(model_path, tmp_path, capsys,
+                                                                       saved_figures):
+    assert main(["reconstruct", "--model", str(model_path), "--touch", "50,50,20,0.2", "--touch", "25,75,15,1.8",
+                 "-o", str(tmp_path / "r.png")]) == 0
+    capsys.readouterr()
+    fig, = saved_figures
+    width, height = fig.get_size_inches()
+    assert width > 1.5 * height  # side by side, not stacked
+    images = [ax for ax in fig.axes if ax.images]
+    assert [ax.get_title().split(",")[0] for ax in images] == ["truth", "reconstruction"]
+    assert images[0].get_position().y0 == pytest.approx(images[1].get_position().y0)
+    assert all(ax.get_xlabel() == "x (mm)" and ax.get_ylabel() == "y (mm)" for ax in images)
+    bars = _colorbars(fig)
+    assert len(bars) == 2
+    for bar in bars:
+        label = bar.yaxis.label
+        assert "sigma_0" in label.get_text() and _inside(fig, label)  # units, not clipped
+
+
+def test_recon_eval_figure_has_a_colour_bar_per_column(model_path, tmp_path, capsys, saved_figures):
+    from latticeopt.recon.dataset import DatasetConfig, generate_dataset
+
+    ds = tmp_path / "ds.npz"
+    generate_dataset(load_sensor_model(model_path), DatasetConfig(per_count=10, touch_counts=(1, 2))).save(ds)
+    assert main(["recon-eval", "--model", str(model_path), "--dataset", str(ds), "--methods", "background,tikhonov",
+                 "--figure", str(tmp_path / "c.png"), "--no-progress"]) == 0
+    captured = capsys.readouterr()
+    assert captured.err == ""  # --no-progress
+    fig, = saved_figures
+    images = [ax for ax in fig.axes if ax.images]
+    assert len(images) == 2 * 3  # two touch counts x (truth, background, tikhonov)
+    bars = _colorbars(fig)
+    assert len(bars) == 3 and all("sigma_0" in b.xaxis.label.get_text() and _inside(fig, b.xaxis.label)
+                                  for b in bars)
+    assert "normalized" not in fig.get_suptitle()
+    # unnormalized: the truth column's scale is the truth's largest change, not 1
+    truth_limit = max(abs(ax.images[0].get_array()).max() for ax in images[::3])
+    assert images[0].images[0].get_clim()[1] == pytest.approx(truth_limit)
+
+
+def test_recon_train_writes_nothing_into_the_working_folder(model_path, tmp_path, monkeypatch, capsys):
+    pytest.importorskip("torch")
+    work = tmp_path / "work"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    monkeypatch.setenv("HOME", str(tmp_path / "home"))
+    net = tmp_path / "net.npz"
+    assert main(["recon-train", "--model", str(model_path), "--per-count", "10", "--touch-counts", "1",
+                 "--epochs", "1", "--threads", "1", "-o", str(net), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out, parse_constant=_reject_constant)
+    assert out["output"] == str(net) and net.is_file()
+    assert list(work.iterdir()) == []

@@ -78,6 +78,7 @@ def register(sub) -> None:
     e.add_argument("--test-snr-db", type=float, default=None, help="noise on the test frames; default none")
     e.add_argument("--figure", default=None, help="PNG of ground truth beside each method")
     e.add_argument("--json", action="store_true", help="print one JSON object")
+    e.add_argument("--no-progress", action="store_true", help="no progress bars (--json implies it)")
     e.set_defaults(func=run_eval)
 
 
@@ -212,7 +213,7 @@ def run_reconstruct(args) -> int:
             res = GaussNewton(sim or SensorSimulator(model), args.prior, max_iter=args.max_iter).reconstruct(y, lam_abs)
             images, lam_used = res.images, res.lam
     k = min(len(images), v.integer("--max-frames", args.max_frames, lo=1))
-    plot_images(images[:k], png, truth=None if truth is None else truth[:k])
+    plot_images(images[:k], png, truth=None if truth is None else truth[:k], extent_mm=model.extent_mm)
     if npy is not None:
         np.save(npy, images)
     out = {"method": method, "prior": None if method == "dnn" else args.prior, "frames": int(len(images)),
@@ -279,13 +280,21 @@ def run_train(args) -> int:
 
 
 def _dataset(args, model, DatasetConfig, ReconDataset, generate_dataset):
+    import sys
+
+    progress = not getattr(args, "json", False)
     if args.dataset and Path(args.dataset).exists():
+        if progress:
+            print(f"reading the dataset {args.dataset}", file=sys.stderr, flush=True)
         data = ReconDataset.load(args.dataset)
         data.check_model(model)
         return data
     cfg = DatasetConfig(per_count=args.per_count, touch_counts=_ints("--touch-counts", args.touch_counts),
                         seed=args.seed)
-    data = generate_dataset(model, cfg, jobs=args.jobs, progress=not getattr(args, "json", False))
+    if progress:  # stderr, so that stdout keeps only the results
+        print(f"building the dataset: {cfg.per_count} samples for each of {len(cfg.touch_counts)} touch counts "
+              "(drawing touches, then one forward solve each)", file=sys.stderr, flush=True)
+    data = generate_dataset(model, cfg, jobs=args.jobs, progress=progress)
     if args.dataset:
         data.save(parse_output(args.dataset, (".npz",), "--dataset"))
     return data
@@ -312,7 +321,7 @@ def run_eval(args) -> int:
     methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
     priors = tuple(p.strip() for p in args.prior.split(",") if p.strip())
     result = evaluate_methods(model, data, methods, priors, _lam(args.lam), args.net, args.gn_per_count,
-                              args.test_snr_db, progress=not args.json)
+                              args.test_snr_db, progress=not (args.json or args.no_progress))
     if png is not None:
         plot_comparison(result, png)
     if args.json:

@@ -21,6 +21,7 @@ normalized change ``(sigma - sigma0) / sigma0`` (0 = background, -0.95 to +1 ins
 from __future__ import annotations
 
 import logging
+import sys
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -224,6 +225,8 @@ def generate_dataset(model: SensorModel, config: DatasetConfig | None = None, *,
         The same seed gives the same dataset on any machine (touches, split); voltages agree to solver
         rounding.
     """
+    from tqdm import tqdm
+
     from ..learn.splits import stratified_split
 
     cfg = config or DatasetConfig()
@@ -234,11 +237,16 @@ def generate_dataset(model: SensorModel, config: DatasetConfig | None = None, *,
     touches = np.full((total, max_count, 4), np.nan)
     counts = np.repeat(np.asarray(cfg.touch_counts), cfg.per_count)
     sigma = np.empty((total, n, n))
-    for i, c in enumerate(counts):
+    # Drawing and rendering the paper's 50 000 samples takes tens of seconds: show it, not a silent wait.
+    for i, c in enumerate(tqdm(counts, desc="touch images", unit="image", disable=not progress, leave=False)):
         rng = np.random.default_rng([cfg.seed, int(c), i])
         touches[i, :c] = sample_touches(rng, int(c), cfg, L)
         sigma[i] = render_touches(touches[i, :c], s0, n, model.extent_mm)
-    sim = simulator if simulator is not None else SensorSimulator(model)
+    if simulator is None:
+        if progress:
+            tqdm.write("rebuilding the sensor model's forward solver", file=sys.stderr)
+        simulator = SensorSimulator(model)
+    sim = simulator
     V = sim.voltages(sigma, jobs=jobs, progress=progress)
     train, val, test = stratified_split(counts, cfg.split, cfg.seed)
     images = ((sigma - s0) / s0).astype(np.float32)

@@ -11,6 +11,7 @@ fingerprint so it is never applied to frames of another sensor model by mistake.
 from __future__ import annotations
 
 import logging
+import sys
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -84,6 +85,9 @@ def train_reconstructor(data: ReconDataset, model: SensorModel, config: ReconTra
 
     cfg = config or ReconTrainConfig()
     data.check_model(model)
+    if cfg.progress:  # the augmentation takes seconds before the epoch bar appears
+        print(f"preparing {len(data.train)} training samples"
+              f"{' x 8 (symmetries with noise)' if cfg.augment else ''}", file=sys.stderr, flush=True)
     x_tr, y_tr = training_arrays(data, model, cfg.snr_db, augment=cfg.augment)
     x_va, y_va, _ = part_arrays(data, model, "val")
     mean, std = channel_statistics(x_tr)

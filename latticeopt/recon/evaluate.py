@@ -89,7 +89,7 @@ def evaluate_methods(model: SensorModel, data: ReconDataset, methods=("tikhonov"
         ``"methods"``: ``{name: {"overall": summary, "by_touches": {count: summary}, "n": int, "seconds":
         float, "lambda": ...}}`` (summaries from :func:`latticeopt.learn.evaluate_images`); ``"images"``:
         ``{name: (k, n, n)}`` and ``"indices"``: ``{name: test positions used}`` for figures; ``"truth"``,
-        ``"n_touches"``: the test images and counts; ``"test_snr_db"``.
+        ``"n_touches"``: the test images and counts; ``"test_snr_db"``; ``"extent_mm"`` of the image grid.
     """
     from ..learn import evaluate_images
 
@@ -98,7 +98,7 @@ def evaluate_methods(model: SensorModel, data: ReconDataset, methods=("tikhonov"
     y, truth, counts = part_arrays(data, model, "test", snr_db=test_snr_db)
     gn_idx = np.concatenate([np.flatnonzero(counts == c)[:gn_per_count] for c in np.unique(counts)])
     out: dict = {"methods": {}, "images": {}, "indices": {}, "truth": truth, "n_touches": counts,
-                 "test_snr_db": test_snr_db}
+                 "test_snr_db": test_snr_db, "extent_mm": tuple(model.extent_mm)}
     linear = {}
     for name in names:
         t0 = time.perf_counter()
@@ -142,14 +142,27 @@ def evaluate_methods(model: SensorModel, data: ReconDataset, methods=("tikhonov"
     return out
 
 
+#: Colour-bar label of every image: the normalized conductivity change, dimensionless.
+CHANGE_LABEL = r"$(\sigma - \sigma_0)\,/\,\sigma_0$ (1)"
+
+
+def _limit(images) -> float:
+    """Symmetric colour limit: the largest absolute value (1 for an all-zero image, e.g. the background)."""
+    lim = float(np.max(np.abs(images))) if np.size(images) else 0.0
+    return lim if np.isfinite(lim) and lim > 0 else 1.0
+
+
 def plot_comparison(result: dict, path: str | Path, per_count: int = 1) -> Path:
     """Ground truth beside each method's images, ``per_count`` test samples per touch count (rows).
 
-    Each image is drawn normalized by its own largest absolute value (as the paper's figures), colour map
-    from -1 (blue, conductivity down) to +1 (red, up).
+    Every image is drawn in the unit of the data, ``(sigma - sigma0) / sigma0``, unnormalized. The panels of
+    one column (one method, or the truth) share a symmetric colour scale, shown by the colour bar under the
+    column: amplitudes compare down a column and, by the bars, across methods; a method that gets the
+    shape right and the amplitude wrong shows it.
     """
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
+    from matplotlib.ticker import MaxNLocator
 
     names = list(result["images"])
     counts = result["n_touches"]
@@ -160,54 +173,102 @@ def plot_comparison(result: dict, path: str | Path, per_count: int = 1) -> Path:
     if not rows:
         raise ParameterError("result", "at least one test sample reconstructed by every method", "none")
     cols = ["truth", *names]
-    fig = Figure(figsize=(1.9 * len(cols), 1.9 * len(rows) + 0.4), layout="constrained")
+    extent = tuple(result.get("extent_mm") or (0, 100, 0, 100))
+    panels = {}
+    for name in cols:
+        if name == "truth":
+            panels[name] = [result["truth"][i] for i in rows]
+        else:
+            pos = [int(np.flatnonzero(result["indices"][name] == i)[0]) for i in rows]
+            panels[name] = [result["images"][name][p] for p in pos]
+    fig = Figure(figsize=(2.1 * len(cols), 2.0 * len(rows) + 1.2), layout="constrained")
     FigureCanvasAgg(fig)
     axes = fig.subplots(len(rows), len(cols), squeeze=False)
-    for r, i in enumerate(rows):
-        for c, name in enumerate(cols):
-            if name == "truth":
-                img = result["truth"][i]
-            else:
-                pos = int(np.flatnonzero(result["indices"][name] == i)[0])
-                img = result["images"][name][pos]
-            scale = float(np.max(np.abs(img))) or 1.0
+    for c, name in enumerate(cols):
+        lim = _limit(panels[name])
+        for r, img in enumerate(panels[name]):
             ax = axes[r, c]
-            ax.imshow(img / scale, origin="lower", cmap="RdBu_r", vmin=-1, vmax=1, extent=(0, 100, 0, 100))
+            im = ax.imshow(img, origin="lower", cmap="RdBu_r", vmin=-lim, vmax=lim, extent=extent)
             ax.set_xticks([])
             ax.set_yticks([])
             if r == 0:
                 ax.set_title(name, fontsize=9)
             if c == 0:
-                ax.set_ylabel(f"{int(counts[i])} touch{'es' if counts[i] > 1 else ''}", fontsize=9)
+                n = int(counts[rows[r]])
+                ax.set_ylabel(f"{n} touch{'es' if n > 1 else ''}", fontsize=9)
+        cb = fig.colorbar(im, ax=axes[:, c], location="bottom", shrink=0.9, aspect=12)
+        cb.ax.xaxis.set_major_locator(MaxNLocator(4, symmetric=True))
+        cb.ax.tick_params(labelsize=7)
+        cb.set_label(CHANGE_LABEL, fontsize=8)
     snr = result.get("test_snr_db")
-    fig.suptitle(f"simulated test set ({'noise-free' if snr is None else f'SNR {snr:g} dB'}); images normalized",
-                 fontsize=10)
+    fig.suptitle(f"simulated test set ({'noise-free' if snr is None else f'SNR {snr:g} dB'}); "
+                 f"{extent[1] - extent[0]:g} x {extent[3] - extent[2]:g} mm; colour scale per column", fontsize=10)
+    fig.get_layout_engine().set(h_pad=0.06)  # room between the suptitle and the column titles
     path = Path(path)
     fig.savefig(path, dpi=110)
     return path
 
 
-def plot_images(images: np.ndarray, path: str | Path, titles=None, truth: np.ndarray | None = None) -> Path:
-    """Tile reconstructed images (and optionally the truth above them) into a PNG."""
+def plot_images(images: np.ndarray, path: str | Path, titles=None, truth: np.ndarray | None = None,
+                extent_mm=(0, 100, 0, 100)) -> Path:
+    """Draw reconstructed images into a PNG, each beside its truth when ``truth`` is given.
+
+    Parameters
+    ----------
+    images : ndarray, shape (k, n, n)
+        Reconstructions, ``(sigma - sigma0) / sigma0``.
+    path
+        PNG file written.
+    titles
+        One title per frame (default ``frame i``).
+    truth : ndarray, shape (k, n, n), optional
+        Ground truth in the same unit: frame ``i`` is then a row, truth left and reconstruction right, each
+        with its own colour bar (a one-step reconstruction's amplitude is seldom the truth's).
+    extent_mm
+        ``(x0, x1, y0, y1)`` of the image grid (mm).
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
     images = np.asarray(images)
     k = len(images)
-    n_rows = 2 if truth is not None else 1
-    fig = Figure(figsize=(2.6 * k, 2.6 * n_rows + 0.3), layout="constrained")
-    FigureCanvasAgg(fig)
-    axes = fig.subplots(n_rows, k, squeeze=False)
-    lim = float(np.max(np.abs(images))) or 1.0
-    for j in range(k):
-        for r, (row, label) in enumerate([(images, "reconstruction")] if truth is None else
-                                         [(truth, "truth"), (images, "reconstruction")]):
-            ax = axes[r, j]
-            scale = lim if row is images else (float(np.max(np.abs(truth))) or 1.0)
-            im = ax.imshow(row[j], origin="lower", cmap="RdBu_r", vmin=-scale, vmax=scale, extent=(0, 100, 0, 100))
-            ax.set_title(f"{label} {j}" if titles is None else f"{titles[j]}", fontsize=8)
-            ax.set_xlabel("x (mm)", fontsize=7)
-    fig.colorbar(im, ax=axes[-1, -1], label="(sigma - sigma0) / sigma0", shrink=0.8)
+    names = [f"frame {j}" for j in range(k)] if titles is None else [str(t) for t in titles]
+    extent = tuple(extent_mm)
+
+    def draw(ax, img, lim, title):
+        im = ax.imshow(img, origin="lower", cmap="RdBu_r", vmin=-lim, vmax=lim, extent=extent)
+        ax.set_title(title, fontsize=9)
+        ax.set_xlabel("x (mm)", fontsize=8)
+        ax.set_ylabel("y (mm)", fontsize=8)
+        ax.tick_params(labelsize=7)
+        return im
+
+    if truth is None:
+        # One method, one unit: a shared scale and one colour bar compare the frames directly.
+        fig = Figure(figsize=(3.0 * k + 1.2, 3.2), layout="constrained")
+        FigureCanvasAgg(fig)
+        axes = fig.subplots(1, k, squeeze=False)[0]
+        lim = _limit(images)
+        for j in range(k):
+            im = draw(axes[j], images[j], lim, f"reconstruction, {names[j]}")
+        cb = fig.colorbar(im, ax=list(axes), shrink=0.9)
+        cb.set_label(CHANGE_LABEL, fontsize=9)
+    else:
+        truth = np.asarray(truth)
+        fig = Figure(figsize=(8.0, 3.4 * k), layout="constrained")
+        FigureCanvasAgg(fig)
+        axes = fig.subplots(k, 2, squeeze=False)
+        for j in range(k):
+            for ax, img, label in ((axes[j, 0], truth[j], "truth"), (axes[j, 1], images[j], "reconstruction")):
+                im = draw(ax, img, _limit(img), f"{label}, {names[j]}")
+                cb = fig.colorbar(im, ax=ax, shrink=0.9)
+                cb.set_label(CHANGE_LABEL, fontsize=9)
+                cb.ax.tick_params(labelsize=7)
     path = Path(path)
     fig.savefig(path, dpi=110)
     return path
