@@ -9,10 +9,12 @@ from ._common import (
     add_mesh_args,
     add_physics_arg,
     add_touch_args,
+    check_cache_dir,
+    check_output_path,
     design_from_args,
     emit_json,
     mesh_from_args,
-    parse_output,
+    mesh_settings_from_args,
     physics_from_args,
     touches_from_args,
 )
@@ -39,7 +41,8 @@ def run_indent(args) -> int:
     from ..coupled import PhysicsSettings
     from ..mechanics import indent
 
-    out = parse_output(args.output, (".vtu",))
+    out = check_output_path("-o", args.output, suffixes=(".vtu",))
+    check_cache_dir(args)
     design = design_from_args(args)
     touches = touches_from_args(args, design)
     # the mechanics of the [physics] settings (materials, indenter); the standalone indentation keeps its own
@@ -56,7 +59,9 @@ def run_indent(args) -> int:
     t_mesh = time.perf_counter() - t0
     res = indent(mesh, touches, settings)
     summary = res.summary()
-    summary.update({"design": design.as_dict(), "nodes": mesh.n_nodes, "tets": mesh.n_tets,
+    summary.update({"design": design.as_dict(),
+                    "mesh_settings": dataclasses.asdict(mesh_settings_from_args(args).resolved(design)),
+                    "nodes": mesh.n_nodes, "tets": mesh.n_tets,
                     "mesh_seconds": t_mesh, "seconds": time.perf_counter() - t0})
     if out is not None:
         res.to_vtu(out)

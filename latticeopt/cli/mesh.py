@@ -2,9 +2,19 @@
 
 from __future__ import annotations
 
+import dataclasses
 import time
 
-from ._common import add_design_args, add_mesh_args, emit_json, mesh_from_args, parse_output
+from ._common import (
+    add_design_args,
+    add_mesh_args,
+    check_cache_dir,
+    check_output_path,
+    design_from_args,
+    emit_json,
+    mesh_from_args,
+    mesh_settings_from_args,
+)
 
 
 def register(sub) -> None:
@@ -26,11 +36,15 @@ def register(sub) -> None:
 
 
 def run_mesh(args) -> int:
-    out = parse_output(args.output, (".vtu",))
+    out = check_output_path("-o", args.output, suffixes=(".vtu",))
+    check_cache_dir(args)
     t0 = time.perf_counter()
     mesh = mesh_from_args(args)
+    design = design_from_args(args)
     summary = mesh.summary()
-    summary.update({"mesher": mesh.info["mesher"], "cached": mesh.info.get("cached", False),
+    summary.update({"design": design.as_dict(),
+                    "mesh_settings": dataclasses.asdict(mesh_settings_from_args(args).resolved(design)),
+                    "mesher": mesh.info["mesher"], "cached": mesh.info.get("cached", False),
                     "seconds": time.perf_counter() - t0, "build_seconds": mesh.info.get("build_seconds")})
     if out is not None:
         mesh.to_vtu(out)
@@ -53,7 +67,8 @@ def run_mesh(args) -> int:
 def run_render(args) -> int:
     from ..render import render_mesh
 
-    out = parse_output(args.output, (".png",))
+    out = check_output_path("-o", args.output, suffixes=(".png",))
+    check_cache_dir(args)
     mesh = mesh_from_args(args)
     render_mesh(mesh, out, show_sealing=args.show_sealing)
     print(f"wrote {out}")

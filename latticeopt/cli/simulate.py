@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import time
 
 from ._common import (
@@ -9,6 +10,7 @@ from ._common import (
     add_mesh_args,
     add_physics_arg,
     add_touch_args,
+    check_cache_dir,
     design_from_args,
     emit_json,
     mesh_settings_from_args,
@@ -39,6 +41,7 @@ def register(sub) -> None:
 def run_simulate(args) -> int:
     from ..coupled import CoupledModel, PhysicsSettings
 
+    check_cache_dir(args)
     design = design_from_args(args)
     touches = touches_from_args(args, design)
     # the dedicated options first, then any --physics KEY=VALUE (checked here, before any meshing)
@@ -50,7 +53,9 @@ def run_simulate(args) -> int:
     model = CoupledModel(design, settings, physics, cache_dir=False if args.no_cache else args.cache_dir)
     res = model.simulate(touches)
     out = res.summary()
-    out.update({"design": design.as_dict(), "physics": physics.as_dict(), "nodes": model.mesh.n_nodes,
+    out.update({"design": design.as_dict(), "touches": [t.as_dict() for t in touches],
+                "mesh_settings": dataclasses.asdict(settings.resolved(design)), "physics": physics.as_dict(),
+                "nodes": model.mesh.n_nodes,
                 "reference_voltages": res.reference_voltages.tolist(), "setup_seconds": model.setup_seconds,
                 "seconds": time.perf_counter() - t0})
     if args.json:
