@@ -98,7 +98,7 @@ def test_invalid_width_exits_2_with_one_line_and_no_traceback(tmp_path):
     (["mesh", "--width", "-1"], ["--width", "-1"]),
     (["mesh", "--width", "nan"], ["--width", "nan"]),
     (["mesh", "--width", "abc"], ["--width", "abc"]),
-    (["mesh", "--mesher", "gmsh"], ["mesher", "'grid', 'tetwild'", "gmsh"]),
+    (["mesh", "--mesher", "gmsh"], ["mesher", "'grid', 'extruded', 'tetwild'", "gmsh"]),
     (["mesh", "--size", "0"], ["size_mm", "0"]),
     (["mesh", "--electrodes", "6"], ["--electrodes", "multiple of 4", "6"]),
     (["mesh", "--pattern", "honeycomb"], ["--pattern", "'square', 'hexagonal'", "honeycomb"]),
