@@ -12,6 +12,7 @@ from __future__ import annotations
 import concurrent.futures as cf
 import contextlib
 import ctypes
+import logging
 import multiprocessing
 import os
 import re
@@ -139,6 +140,11 @@ class _Dask:
         except ImportError as exc:
             raise ParameterError("backend", "'local', or 'dask' with dask.distributed installed "
                                  "(pip install 'dask[distributed]')", f"dask ({exc})") from None
+        # distributed sets its loggers to INFO when imported: some 30 lines of scheduler and nanny chatter per
+        # run. They follow this process's level instead (WARNING unless `latticeopt -v`).
+        if not logging.getLogger().isEnabledFor(logging.INFO):
+            for name in ("distributed", "dask"):
+                logging.getLogger(name).setLevel(logging.WARNING)
         self._own = []
         if scheduler is None:
             cluster = LocalCluster(n_workers=jobs, threads_per_worker=1, processes=True, dashboard_address=None)
