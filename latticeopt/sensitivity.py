@@ -178,13 +178,15 @@ def plot_tornado(rows: Sequence[dict], path: Path) -> Path | None:
             finite = [(lab, v, se) for lab, v, se in vals if math.isfinite(v)]
             if not finite:
                 continue
-            lo, hi = min(v for _, v, _ in finite), max(v for _, v, _ in finite)
+            # the bar runs from the baseline too, so a key tried at one value shows how far it moves the figure
+            lo, hi = min(b, *(v for _, v, _ in finite)), max(b, *(v for _, v, _ in finite))
             ax.barh(i, hi - lo, left=lo, color="C0", alpha=0.5)
             for lab, v, se in finite:
                 ax.errorbar(v, i, xerr=None if math.isnan(se) else se, fmt="o", color="C0", capsize=3)
                 ax.annotate(str(lab), (v, i), textcoords="offset points", xytext=(0, 6), ha="center",
                             fontsize=7)
         ax.axvline(b, color="k", lw=0.8)
+        ax.margins(x=0.12)
         ax.set_yticks(range(len(spans)), [k for k, _ in spans], fontsize=8)
         ax.set_title(name, fontsize=9)
     for ax in axes[len(names):]:
