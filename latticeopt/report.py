@@ -185,30 +185,73 @@ def _x_field(study: Study) -> str:
     return "width_mm" if "width_mm" in varying else varying[0]
 
 
+def _mesh_caption(study: Study) -> str:
+    """What meshed the study's designs, e.g. ``grid mesh, 4 mm, >= 1 cell across a channel, >= 2 through the
+    layer``: every figure says which mesh made it (V_rel moves by a few per cent between meshes)."""
+    m = study.settings.mesh
+    meshers = sorted({m.resolved(d).mesher for d in study.designs}) or [m.mesher]
+    parts = [f"{'/'.join(meshers)} mesh, {m.size_mm:g} mm"]
+    if set(meshers) & {"grid", "extruded"}:
+        parts.append(f">= {m.channel_cells} cell{'s' if m.channel_cells > 1 else ''} across a channel, "
+                     f">= {m.layer_cells} through the layer")
+    if "tetwild" in meshers:
+        parts.append(f"envelope {m.epsilon_rel:g}")
+    return ", ".join(parts)
+
+
+def _phantom_caption(study: Study, summary: Sequence[dict]) -> str:
+    n = max((s["n"] for s in summary), default=0)
+    total = len(study.phantoms)
+    return f"{n} phantoms per design" + ("" if n == total else f" (the {n} of {total} all designs solved)")
+
+
 def plot_lines(study: Study, summary: Sequence[dict], path: Path) -> Path:
-    """V_rel against one grid field, one line per combination of the others, error bars = SE."""
+    """V_rel against one grid field, one line per combination of the others, error bars = SE.
+
+    The uniform layer (``width_mm = 0``) is a different topology, not the end of the channel-width axis: its
+    points are drawn as isolated squares (legend "uniform layer"), never joined to ``w > 0`` by a line.
+    """
     from matplotlib.figure import Figure
+    from matplotlib.lines import Line2D
 
     x_field = _x_field(study)
     others = [f for f in study.grid_fields if f != x_field]
-    fig = Figure(figsize=(6.4, 4.4), layout="constrained")
+    fig = Figure(figsize=(6.4, 4.6), layout="constrained")
     ax = fig.add_subplot()
     lines: dict[tuple, list] = {}
     for design, s in zip(study.designs, summary):
         lines.setdefault(tuple(_value(design, f) for f in others), []).append((_value(design, x_field), s, design))
+
+    def se(p):
+        return 0.0 if math.isnan(p[1]["v_rel_se"]) else p[1]["v_rel_se"]
+
+    any_uniform = False
     for _, pts in lines.items():
         pts.sort(key=lambda p: p[0])
-        ax.errorbar([p[0] for p in pts], [p[1]["v_rel_mean"] for p in pts],
-                    yerr=[0.0 if math.isnan(p[1]["v_rel_se"]) else p[1]["v_rel_se"] for p in pts],
-                    marker="o", capsize=3, label=_label(pts[0][2], others) or "all")
-    ax.set_xlabel(x_field.replace("_mm", " (mm)"))
+        is_uniform = [x_field == "width_mm" and p[2].width_mm == 0 for p in pts]
+        uniform = [p for p, u in zip(pts, is_uniform) if u]
+        lattice = [p for p, u in zip(pts, is_uniform) if not u]
+        label = _label(pts[0][2], others) or "all"
+        color = None
+        if lattice:
+            bars = ax.errorbar([p[0] for p in lattice], [p[1]["v_rel_mean"] for p in lattice],
+                               yerr=[se(p) for p in lattice], marker="o", capsize=3, label=label)
+            color = bars.lines[0].get_color()
+        if uniform:
+            any_uniform = True
+            ax.errorbar([p[0] for p in uniform], [p[1]["v_rel_mean"] for p in uniform],
+                        yerr=[se(p) for p in uniform], marker="s", markersize=7, linestyle="none", capsize=3,
+                        color=color, label=None if lattice else label)
+    ax.set_xlabel(x_field.replace("_mm", " (mm)") + ("; 0 = uniform layer" if any_uniform else ""))
     ax.set_ylabel("mean $V_{rel}$ (± SE)")
-    n = max((s["n"] for s in summary), default=0)
-    common = "" if n == len(study.phantoms) else f" (the {n} of {len(study.phantoms)} all designs solved)"
-    ax.set_title(f"{study.name}: {n} phantoms per design{common}")
+    ax.set_title(f"{study.name}: {_phantom_caption(study, summary)}\n{_mesh_caption(study)}", fontsize=10)
     ax.grid(alpha=0.3)
-    if len(lines) > 1:
-        ax.legend(fontsize="small")
+    handles, labels = ax.get_legend_handles_labels()
+    if any_uniform:
+        handles.append(Line2D([], [], marker="s", linestyle="none", color="0.4", markersize=7))
+        labels.append("uniform layer (w = 0, no lattice)")
+    if len(lines) > 1 or any_uniform:
+        ax.legend(handles, labels, fontsize="small")
     fig.savefig(path, dpi=130)
     return path
 
@@ -241,7 +284,8 @@ def plot_heatmap(study: Study, summary: Sequence[dict], path: Path) -> Path | No
             ax.text(c, r, f"{val:.4f}", ha="center", va="center", fontsize=7,
                     color="black" if val > mid else "white")
     fig.colorbar(im, ax=ax, label="mean $V_{rel}$")
-    ax.set_title(f"{study.name}: mean V_rel")
+    ax.set_title(f"{study.name}: mean V_rel, {_phantom_caption(study, summary)}\n{_mesh_caption(study)}",
+                 fontsize=10)
     fig.savefig(path, dpi=130)
     return path
 
@@ -289,7 +333,8 @@ def plot_press(study: Study, evaluations: Sequence[Evaluation], path: Path) -> P
     t = study.phantoms[0].touches[0]
     ax.set_xlabel("indentation depth (mm)")
     ax.set_ylabel("$V_{rel}$")
-    ax.set_title(f"{study.name}: r = {t.radius_mm:g} mm at ({t.x_mm:g}, {t.y_mm:g}) mm")
+    ax.set_title(f"{study.name}: r = {t.radius_mm:g} mm at ({t.x_mm:g}, {t.y_mm:g}) mm, {len(depths)} depths\n"
+                 f"{_mesh_caption(study)}", fontsize=10)
     ax.grid(alpha=0.3)
     ax.legend(fontsize="small")
     fig.savefig(path, dpi=130)

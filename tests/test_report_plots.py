@@ -1,0 +1,61 @@
+"""Sweep figures: the uniform layer drawn apart from the lattice widths; every figure names its mesh and
+phantom count."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from latticeopt.report import plot_heatmap, plot_lines
+from latticeopt.study import study_from_dict
+
+
+@pytest.fixture
+def saved_figures(monkeypatch):
+    from matplotlib.figure import Figure
+
+    figures = []
+    original = Figure.savefig
+
+    def record(self, *args, **kwargs):
+        figures.append(self)
+        return original(self, *args, **kwargs)
+
+    monkeypatch.setattr(Figure, "savefig", record)
+    return figures
+
+
+def _study(tmp_path, mesh=None):
+    return study_from_dict({"name": "map", "out": str(tmp_path / "out"), "design": {"pitch_mm": 12.5},
+                            "grid": {"thickness_mm": [1.0, 3.0], "width_mm": [0, 2, 4]},
+                            "phantoms": {"seed": 1, "counts": {"1": 2, "2": 1}},
+                            "mesh": mesh or {"mesher": "grid", "size_mm": 4.0, "channel_cells": 1}})
+
+
+def _summary(study):
+    return [{"v_rel_mean": 0.01 * (1 + d.width_mm + d.thickness_mm), "v_rel_se": 0.001, "n": len(study.phantoms)}
+            for d in study.designs]
+
+
+def test_uniform_layer_is_not_joined_to_the_lattice_widths(tmp_path, saved_figures):
+    study = _study(tmp_path)
+    plot_lines(study, _summary(study), tmp_path / "lines.png")
+    fig, = saved_figures
+    ax = fig.axes[0]
+    joined = [ln for ln in ax.lines if len(ln.get_xdata()) > 1 and ln.get_linestyle() != "None"]
+    assert joined, "the lattice widths are joined by lines"
+    for ln in joined:
+        x = np.asarray(ln.get_xdata(), dtype=float)
+        assert 0.0 not in x, x  # w = 0 (a different topology) never on a line with w = 2
+    isolated = [ln for ln in ax.lines if ln.get_marker() == "s" and list(ln.get_xdata()) == [0]]
+    assert len(isolated) == 2  # one uniform-layer point per thickness
+    assert any("uniform" in t.get_text() for t in ax.get_legend().get_texts())
+    title = ax.get_title()
+    assert "3 phantoms per design" in title and "grid mesh, 4 mm" in title and ">= 1 cell across a channel" in title
+
+
+def test_heatmap_title_names_mesh_and_phantoms(tmp_path, saved_figures):
+    study = _study(tmp_path, mesh={"size_mm": 5.0})  # "auto" resolves to the grid mesher for the square lattice
+    assert plot_heatmap(study, _summary(study), tmp_path / "heat.png") is not None
+    title = saved_figures[0].axes[0].get_title()
+    assert "3 phantoms per design" in title and "grid mesh, 5 mm" in title
