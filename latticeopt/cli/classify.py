@@ -63,21 +63,26 @@ def _load_npy(path: str, flag: str):
 
     from ..errors import ParameterError
 
-    p = Path(path)
-    if p.suffix.lower() != ".npy":
-        raise ParameterError(flag, "a .npy file", path)
-    if not p.is_file():
-        raise ParameterError(flag, "an existing .npy file", path)
+    from ._common import check_input_file
+
+    p = check_input_file(flag, path, (".npy",))
     try:
-        return np.load(p, allow_pickle=False)
+        a = np.load(p, allow_pickle=False)
     except (OSError, ValueError, EOFError) as exc:
         raise ParameterError(flag, "a numeric .npy array (no pickles)", f"{path}: {exc}") from None
+    if np.iscomplexobj(a):  # the models take real relative changes; casting would drop the imaginary part
+        raise ParameterError(flag, "real values (for complex recordings save np.abs(...), the magnitude)",
+                             f"{path}: dtype {a.dtype}")
+    return a
 
 
 def _sensor_model(path: str):
     from ..errors import ParameterError
     from ..sensor_model import SensorModelError, load_sensor_model
 
+    from ._common import check_input_file
+
+    check_input_file("--model", path, (".npz",), "an existing sensor-model file (latticeopt export)")
     try:
         return load_sensor_model(path)
     except SensorModelError as exc:
@@ -90,6 +95,7 @@ def run_classify_train(args) -> int:
     from ..gestures import MeasurementConfig, generate_gestures
     from ..gestures.experiment import accuracy_table, train_gesture_models
     from ..learn._torch import require_torch
+    from ._common import check_output_path
 
     t0 = time.perf_counter()
     per_class = v.integer("--per-class", args.per_class, lo=3,
@@ -105,12 +111,14 @@ def run_classify_train(args) -> int:
     if args.snr is None:
         measurement = MeasurementConfig()
     else:
-        lo, hi = (v.real("--snr", x) for x in args.snr)
+        # below -40 dB the noise is 100 times the signal; above 200 dB it is below double-precision rounding
+        lo, hi = (v.real("--snr", x, lo=-40, hi=200) for x in args.snr)
         if hi < lo:
-            raise ParameterError("--snr", "LO HI in dB with LO <= HI", f"{lo:g} {hi:g}")
+            raise ParameterError("--snr", "LO HI in dB with -40 <= LO <= HI <= 200", f"{lo:g} {hi:g}")
         measurement = MeasurementConfig(snr_db=(lo, hi))
-    if Path(args.out).exists() and not Path(args.out).is_dir():
-        raise ParameterError("--out", "a folder (created if missing)", args.out)
+    check_output_path("--out", args.out, kind="dir")
+    if not args.no_cache:
+        check_output_path("--cache-dir", args.cache_dir, kind="dir")
     require_torch()
     model = _sensor_model(args.model)
     cache = None if args.no_cache else (args.cache_dir or _default_cache_dir())
@@ -137,7 +145,6 @@ def run_classify_train(args) -> int:
 
 
 def run_classify(args) -> int:
-    import json
     import sys
 
     import numpy as np
@@ -151,16 +158,16 @@ def run_classify(args) -> int:
     elif np.median(np.abs(frames)) > 0.5:
         print("latticeopt classify: warning: the frames look like raw voltages (median |value| > 0.5); the "
               "models expect relative changes: pass --reference", file=sys.stderr)
-    model_path = Path(args.model)
-    if not model_path.is_file():
-        from ..errors import ParameterError
+    from ._common import check_input_file
 
-        raise ParameterError("--model", "an existing classifier file (gesture_cnn.npz or gesture_lstm.npz)",
-                             args.model)
+    model_path = check_input_file("--model", args.model, (".npz",),
+                                  "an existing classifier file (gesture_cnn.npz or gesture_lstm.npz)")
     labels, prob, _ = classify_sequences(model_path, frames)
     if args.json:
-        print(json.dumps({"predictions": [{"sequence": i, "label": int(k), "class": GESTURES[k],
-                                           "probability": float(prob[i, k])} for i, k in enumerate(labels)]}))
+        from ._common import emit_json
+
+        emit_json({"predictions": [{"sequence": i, "label": int(k), "class": GESTURES[k],
+                                    "probability": float(prob[i, k])} for i, k in enumerate(labels)]})
     else:
         for i, k in enumerate(labels):
             print(f"{i}\t{GESTURES[k]}\t{prob[i, k]:.3f}")
