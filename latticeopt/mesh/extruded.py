@@ -4,8 +4,9 @@ The conductive layer is a 2D layout extruded through ``t`` and every other inter
 const``, so a mesh that conforms to the layout in 2D and to the layer faces in z represents the sensor
 exactly. The square ``[0, L]^2`` is triangulated with Shewchuk's Triangle (the ``triangle`` package) as a
 planar straight-line graph whose segments are every edge of the hydrogel footprint's rings and the square's
-sides, split at every electrode edge and wherever the footprint meets a side; Triangle only adds points on
-segments, so the triangulation conforms and each triangle lies wholly in the hydrogel or in silicone. The
+sides, split at every electrode edge and wherever the footprint meets a side; Triangle keeps every segment as
+a chain of triangle edges (splitting it where its quality refinement needs), so the triangulation conforms
+and each triangle lies wholly in the hydrogel or in silicone. The
 triangle vertices are repeated on the z levels of :func:`~latticeopt.mesh.grid.z_coordinates` (the grid
 mesher's rule), each triangle becomes a stack of prisms, and each prism is split into three tets.
 
