@@ -24,12 +24,14 @@ Hydrogel (channels), polyacrylamide-LiCl:
     transparent ionic touch panel", Science 353 (2016) 682) are soft gels whose shear modulus lies roughly
     between 2 and 15 kPa depending on monomer and cross-linker content (range from the project's NOTES);
     5 kPa sits in that range and is likewise not a measurement of the paper's gel.
-Poisson ratio 0.49 for both:
+Poisson ratio 0.49 for both (``[physics]`` ``hydrogel_poisson_ratio`` and ``silicone_poisson_ratio``):
     rubber is nearly incompressible (bulk modulus ~ 1 GPa, so nu > 0.4999) and a water-swollen gel
-    under a fast press (undrained) is too. 0.49 (``kappa = 50 mu``) keeps the stack nearly incompressible;
-    the mechanics' patch (mean-dilatation) formulation does not lock at 0.49 or 0.499
-    (``benchmarks/bench_locking.py``), so raising it is a physics choice, not a numerical one (the
-    large-strain Newton cost at higher values has not been measured).
+    under a fast press (undrained: the water has no time to leave) is too; a slow press lets it drain
+    towards the network's own, lower Poisson ratio. 0.49 (``kappa = 50 mu``) keeps the stack nearly
+    incompressible yet lets the gel under a deep press lose a third of its volume locally. The patch
+    (mean-dilatation) formulation does not lock up to nu = 0.4999 (``benchmarks/bench_locking.py``,
+    docs/verification.md), and the indentation converges there (double-precision factorization and
+    shifted tangents, :mod:`latticeopt.mechanics.indent`) at several times the cost of 0.49.
 
 Every value is a documented parameter: sweep it, never tune it silently to match a figure.
 """
