@@ -109,7 +109,7 @@ def test_invalid_width_exits_2_with_one_line_and_no_traceback(tmp_path):
     (["mesh", "--layout", "layout.txt"], ["--layout", ".geojson", "layout.txt"]),
     (["mesh", "--electrode-positions", "10,20,x"], ["--electrode-positions", "10,20,x"]),
     (["mesh", "--electrode-positions", "10,20,30"], ["--electrode-positions", "4 increasing"]),
-    (["mesh", "--hydrogel-fraction", "0.99", "--pattern", "hexagonal"], ["--hydrogel-fraction", "0.99"]),
+    (["mesh", "--hydrogel-fraction", "0.001", "--pattern", "hexagonal"], ["--hydrogel-fraction", "0.001"]),
     (["mesh", "--hydrogel-fraction", "0.3", "--width", "2"], ["--hydrogel-fraction", "not both"]),
     (["mesh", "-o", "sensor.stl"], ["-o", ".vtu", "sensor.stl"]),
     (["render", "-o", "sensor.jpg"], ["-o", ".png", "sensor.jpg"]),
