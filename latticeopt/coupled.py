@@ -68,7 +68,7 @@ class PhysicsSettings:
     sigma_S_per_m
         Hydrogel conductivity (S/m); ``V_rel`` is independent of its scale except through ``z_c * sigma``.
     contact_impedance_ohm_m2
-        Electrode contact impedance ``z_c`` (ohm m^2).
+        Electrode contact impedance ``z_c`` (ohm m^2), ``> 0``.
     current_A
         Drive current (A); ``V_rel`` does not depend on it (linear problem).
     mechanics_rtol
@@ -98,8 +98,10 @@ class PhysicsSettings:
         for name in ("silicone_shear_kPa", "hydrogel_shear_kPa", "sigma_S_per_m", "current_A"):
             set_(self, name, v.real(name, getattr(self, name), lo=0, lo_open=True))
         set_(self, "mechanics_rtol", v.real("mechanics_rtol", self.mechanics_rtol, lo=0, lo_open=True, hi=1e-1))
+        # the complete electrode model divides by z_c (ForwardModel rejects z_c <= 0): 0 would pass here and
+        # then fail every phantom
         set_(self, "contact_impedance_ohm_m2",
-             v.real("contact_impedance_ohm_m2", self.contact_impedance_ohm_m2, lo=0))
+             v.real("contact_impedance_ohm_m2", self.contact_impedance_ohm_m2, lo=0, lo_open=True))
         for name in ("hydrogel_poisson_ratio", "silicone_poisson_ratio"):
             set_(self, name, v.real(name, getattr(self, name), lo=0, hi=0.5, hi_open=True))
 

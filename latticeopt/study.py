@@ -443,6 +443,11 @@ def study_from_dict(raw: Mapping, *, source: str = "<dict>", overridden: Sequenc
             raise where.error("press", "no [press] table in a kind = 'grid' study (use [phantoms])", raw["press"])
         phantom_set: RandomPhantoms | PressSeries = _random_phantoms(where, _table(where, raw, "phantoms"))
         table_name = "phantoms"
+        # the range, not the draws: a depth range reaching the stack thickness is wrong even if no draw hits it
+        thinnest = min(d.total_thickness_mm for d in designs)
+        if phantom_set.depth_mm[1] >= thinnest:
+            raise where.error("phantoms.depth_mm", f"[low, high] with 0 < low <= high < {thinnest:g} (the stack "
+                              "thickness H of every design)", list(phantom_set.depth_mm))
     else:
         if "phantoms" in raw:
             raise where.error("phantoms", "no [phantoms] table in a kind = 'press' study (use [press])",

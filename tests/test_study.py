@@ -106,7 +106,7 @@ def test_unknown_key_named_with_valid_keys(tmp_path, edit, key, fragment):
     (("counts = { 1 = 2, 2 = 1 }", "counts = { 7 = 1 }"), "phantoms.counts.7"),
     (("counts = { 1 = 2, 2 = 1 }", "counts = { 1 = 2.5 }"), "phantoms.counts.1"),
     (("seed = 1", "seed = 1\nradius_mm = [8, 6]"), "phantoms.radius_mm"),
-    (("seed = 1", "seed = 1\ndepth_mm = [9.2, 9.5]"), "phantoms"),              # deeper than the stack
+    (("seed = 1", "seed = 1\ndepth_mm = [9.2, 9.5]"), "phantoms.depth_mm"),     # deeper than the stack (by range)
     (("[phantoms]", "[press]\nx_mm = 50\n[phantoms]"), "press"),                # press table in a grid study
 ])
 def test_invalid_study_rejected_naming_file_and_key(tmp_path, edit, key):

@@ -215,3 +215,139 @@ def physics_from_args(args: argparse.Namespace) -> dict:
 def physics_overrides(args: argparse.Namespace) -> list[str]:
     """``--physics KEY=VALUE`` as the study overrides ``physics.KEY=VALUE`` (sweep and optimize), checked first."""
     return [f"physics.{k}={json.dumps(v)}" for k, v in physics_from_args(args).items()]
+
+
+# -- output paths checked before any work ------------------------------------------------------------------
+def check_output_path(flag: str, path, kind: str = "file", suffixes: tuple[str, ...] | None = None):
+    """Check that ``path`` can be written as a ``kind`` (``"file"`` or ``"dir"``) before any work starts.
+
+    A file must end in one of ``suffixes`` (if given), must not be an existing folder, and its parent folder
+    must exist and be writable. A folder must not be an existing file; it must be writable
+    if it exists, else its nearest existing ancestor must be a writable folder (it is created later).
+    Returns the :class:`~pathlib.Path` (``None`` for ``None``); raises :class:`ParameterError` named ``flag``.
+    """
+    import os
+    import tempfile
+
+    if path is None:
+        return None
+    text = str(path)
+    what = "a writable folder (created if missing)" if kind == "dir" else (
+        "a writable file path" + (f" ending in {' or '.join(suffixes)}" if suffixes else ""))
+    if not text.strip() or "\x00" in text:
+        raise ParameterError(flag, what, text)
+    p = Path(text).expanduser()
+    if kind != "dir" and suffixes is not None and p.suffix.lower() not in suffixes:
+        raise ParameterError(flag, f"a file name ending in {' or '.join(suffixes)}", text)
+    try:
+        if kind == "dir":
+            if p.exists() and not p.is_dir():
+                raise ParameterError(flag, what, f"{text} (an existing file)")
+            probe = p
+        else:
+            if p.is_dir():
+                raise ParameterError(flag, what, f"{text} (an existing folder)")
+            if p.exists() and not os.access(p, os.W_OK):
+                raise ParameterError(flag, what, f"{text} (not writable)")
+            probe = p.parent
+            if not probe.exists():
+                raise ParameterError(flag, what + " in an existing folder", f"{text} ({probe} does not exist)")
+        # the nearest existing ancestor must be a writable folder (missing folders are created later)
+        while not probe.exists():
+            if probe.parent == probe:
+                break
+            probe = probe.parent
+        if not probe.is_dir():
+            raise ParameterError(flag, what, f"{text} ({probe} is a file)")
+        if not os.access(probe, os.W_OK | os.X_OK):
+            raise ParameterError(flag, what, f"{text} ({probe} is not writable)")
+        # os.access says yes to root on a read-only file system: create (and remove) a file there
+        with tempfile.TemporaryFile(dir=probe, prefix=".latticeopt-write-test-"):
+            pass
+        if kind != "dir" and len(p.name.encode()) > 255:
+            raise OSError(36, "File name too long")
+    except OSError as exc:  # a read-only file system, a name too long, ...
+        short = text if len(text) <= 120 else text[:100] + "..." + text[-16:]
+        raise ParameterError(flag, what, f"{short} ({exc.strerror or exc})") from None
+    return p
+
+
+def check_mesh_args(args: argparse.Namespace) -> None:
+    """The mesh options, named by their flags, and ``--cache-dir`` (unless ``--no-cache``: a writable folder or
+    one that can be created), before any meshing."""
+    flags = {"mesher": "--mesher", "size_mm": "--size", "channel_cells": "--channel-cells",
+             "layer_cells": "--layer-cells", "epsilon_rel": "--epsilon"}
+    try:
+        mesh_settings_from_args(args)
+    except ParameterError as exc:
+        raise ParameterError(flags.get(exc.name, exc.name), exc.expected, exc.got) from None
+    if not getattr(args, "no_cache", False) and getattr(args, "cache_dir", None) is not None:
+        check_output_path("--cache-dir", args.cache_dir, kind="dir")
+
+
+#: ``--touch`` may be given this often (``indent`` and ``simulate``; their --help says "up to three touches").
+MAX_CLI_TOUCHES = 3
+
+
+def check_touch_count(args: argparse.Namespace) -> None:
+    """At most :data:`MAX_CLI_TOUCHES` ``--touch`` options (checked before any meshing)."""
+    n = len(getattr(args, "touch", None) or [])
+    if n > MAX_CLI_TOUCHES:
+        raise ParameterError("--touch", f"1 to {MAX_CLI_TOUCHES} touches (one --touch X,Y,R,D each)", f"{n} touches")
+
+
+def check_study_file(path) -> None:
+    """The STUDY argument: an existing, readable UTF-8 text file (before the study is parsed)."""
+    p = Path(str(path))
+    try:
+        data = p.read_bytes()
+    except OSError as exc:
+        raise ParameterError("STUDY", "a readable TOML study file", f"{path} ({exc.strerror or exc})") from None
+    try:
+        data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ParameterError("STUDY", "a UTF-8 text TOML study file",
+                             f"{path} (byte {exc.start}: not UTF-8 text)") from None
+
+
+def check_study_outputs(args: argparse.Namespace, study) -> None:
+    """A loaded study's output folder, cache folder and model, named by the flag that set them (or the study
+    key), before any run (also for ``--dry-run``)."""
+    from ..sweep import resolve_model
+
+    check_output_path("--out" if getattr(args, "out", None) is not None else "out", study.out_dir, kind="dir")
+    cache = study.settings.cache_dir
+    if cache is not None:
+        check_output_path("cache_dir", cache, kind="dir")
+    flag = "--evaluate" if getattr(args, "evaluate", None) is not None else "model"
+    try:
+        fn = resolve_model(study.settings.model)
+    except ParameterError as exc:
+        raise ParameterError(flag, exc.expected, exc.got) from None
+    if not callable(fn):
+        raise ParameterError(flag, "a 'module:function' naming a callable that evaluates one phantom",
+                             f"{study.settings.model} (a {type(fn).__name__})")
+
+
+def check_input_file(flag: str, path, suffixes: tuple[str, ...] | None = None, what: str = "an existing file"):
+    """An input file named by ``flag``: the right suffix, existing, a file (not a folder), readable."""
+    import os
+
+    if path is None:
+        return None
+    text = str(path)
+    expected = what + (f" ending in {' or '.join(suffixes)}" if suffixes else "")
+    short = text if len(text) <= 120 else text[:100] + "..." + text[-16:]
+    if not text.strip() or "\x00" in text:
+        raise ParameterError(flag, expected, text)
+    p = Path(text).expanduser()
+    if suffixes is not None and p.suffix.lower() not in suffixes:
+        raise ParameterError(flag, expected, short)
+    try:
+        if not p.is_file():
+            raise ParameterError(flag, expected, f"{short} ({'a folder' if p.is_dir() else 'missing'})")
+        if not os.access(p, os.R_OK):
+            raise ParameterError(flag, expected, f"{short} (not readable)")
+    except OSError as exc:  # a name too long, ...
+        raise ParameterError(flag, expected, f"{short} ({exc.strerror or exc})") from None
+    return p

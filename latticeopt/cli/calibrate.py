@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from ..errors import ParameterError
-from ._common import add_mesh_args, emit_json, mesh_settings_from_args
+from ._common import add_mesh_args, check_mesh_args, check_output_path, emit_json, mesh_settings_from_args
 
 
 def register(sub) -> None:
@@ -91,8 +91,10 @@ def run_calibrate(args: argparse.Namespace) -> int:
         raise ParameterError("--physics", "keys other than the fitted ones", clash[0])
     fit_on = _fit_on(args.fit_on)
     presses = read_presses(args.data)
+    check_mesh_args(args)
     mesh = mesh_settings_from_args(args)
-    out = _writable_folder(args.out or Path("runs") / f"calibrate-{Path(args.data).stem}")
+    out = _writable_folder(check_output_path("--out", args.out or Path("runs") / f"calibrate-{Path(args.data).stem}",
+                                             kind="dir"))
     say = None if args.quiet else (lambda msg: print(msg, file=sys.stderr, flush=True))
     predict = coupled_predictor(mesh, physics, cache_dir=False if args.no_cache else args.cache_dir)
     cal = calibrate(presses, params, predict, fit_on=fit_on, max_evals=args.max_evals,

@@ -62,7 +62,6 @@ def _load_npy(path: str, flag: str):
     import numpy as np
 
     from ..errors import ParameterError
-
     from ._common import check_input_file
 
     p = check_input_file(flag, path, (".npy",))
@@ -79,7 +78,6 @@ def _load_npy(path: str, flag: str):
 def _sensor_model(path: str):
     from ..errors import ParameterError
     from ..sensor_model import SensorModelError, load_sensor_model
-
     from ._common import check_input_file
 
     check_input_file("--model", path, (".npz",), "an existing sensor-model file (latticeopt export)")

@@ -4,7 +4,15 @@ from __future__ import annotations
 
 import time
 
-from ._common import add_design_args, add_mesh_args, design_from_args, emit_json, mesh_from_args, parse_output
+from ._common import (
+    add_design_args,
+    add_mesh_args,
+    check_mesh_args,
+    check_output_path,
+    design_from_args,
+    emit_json,
+    mesh_from_args,
+)
 
 PROTOCOLS = ("adjacent", "opposite")
 
@@ -44,8 +52,9 @@ def run_forward(args) -> int:
     from ..electrics import ForwardModel, Protocol
 
     t0 = time.perf_counter()
-    png = parse_output(args.plot, (".png",), "--plot")
-    vtu = parse_output(args.vtu, (".vtu",), "--vtu")
+    png = check_output_path("--plot", args.plot, suffixes=(".png",))
+    vtu = check_output_path("--vtu", args.vtu, suffixes=(".vtu",))
+    check_mesh_args(args)
     v.choice("--protocol", args.protocol, PROTOCOLS)
     v.choice("--electrode-mode", args.electrode_mode, ("cem", "point"))
     for flag, value in (("--sigma", args.sigma), ("--contact-impedance", args.contact_impedance),

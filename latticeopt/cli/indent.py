@@ -9,8 +9,9 @@ from ._common import (
     add_mesh_args,
     add_physics_arg,
     add_touch_args,
-    check_cache_dir,
+    check_mesh_args,
     check_output_path,
+    check_touch_count,
     design_from_args,
     emit_json,
     mesh_from_args,
@@ -42,7 +43,8 @@ def run_indent(args) -> int:
     from ..mechanics import indent
 
     out = check_output_path("-o", args.output, suffixes=(".vtu",))
-    check_cache_dir(args)
+    check_mesh_args(args)
+    check_touch_count(args)
     design = design_from_args(args)
     touches = touches_from_args(args, design)
     # the mechanics of the [physics] settings (materials, indenter); the standalone indentation keeps its own

@@ -8,7 +8,7 @@ import time
 from ._common import (
     add_design_args,
     add_mesh_args,
-    check_cache_dir,
+    check_mesh_args,
     check_output_path,
     design_from_args,
     emit_json,
@@ -37,7 +37,7 @@ def register(sub) -> None:
 
 def run_mesh(args) -> int:
     out = check_output_path("-o", args.output, suffixes=(".vtu",))
-    check_cache_dir(args)
+    check_mesh_args(args)
     t0 = time.perf_counter()
     mesh = mesh_from_args(args)
     design = design_from_args(args)
@@ -68,7 +68,7 @@ def run_render(args) -> int:
     from ..render import render_mesh
 
     out = check_output_path("-o", args.output, suffixes=(".png",))
-    check_cache_dir(args)
+    check_mesh_args(args)
     mesh = mesh_from_args(args)
     render_mesh(mesh, out, show_sealing=args.show_sealing)
     print(f"wrote {out}")

@@ -4,7 +4,14 @@ from __future__ import annotations
 
 import argparse
 
-from ._common import add_physics_arg, check_parallel_args, physics_overrides, study_overrides
+from ._common import (
+    add_physics_arg,
+    check_parallel_args,
+    check_study_file,
+    check_study_outputs,
+    physics_overrides,
+    study_overrides,
+)
 
 
 def register(sub) -> None:
@@ -53,8 +60,11 @@ def run_optimize_command(args: argparse.Namespace) -> int:
     from ..optimize import effective_bounds_text, load_categories, run_optimization
     from ..optimize.categories import write_summary
 
+    check_study_file(args.study)
     runs = load_categories(args.study, study_overrides(args) + physics_overrides(args))
     check_parallel_args(args)
+    for run in runs:
+        check_study_outputs(args, run.optimization.study)
     if args.dry_run:
         for run in runs:
             opt = run.optimization

@@ -5,7 +5,17 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from ._common import add_design_args, add_mesh_args, design_from_args, emit_json, mesh_settings_from_args, parse_output
+from ._common import (
+    add_design_args,
+    add_mesh_args,
+    check_input_file,
+    check_mesh_args,
+    check_output_path,
+    design_from_args,
+    emit_json,
+    mesh_settings_from_args,
+    parse_output,
+)
 
 
 def register(sub) -> None:
@@ -108,6 +118,7 @@ def _load_model(path):
     from ..errors import ParameterError
     from ..sensor_model import SensorModelError, load_sensor_model
 
+    check_input_file("--model", path, (".npz",), "an existing sensor-model file (latticeopt export)")
     try:
         return load_sensor_model(path)
     except SensorModelError as exc:
@@ -137,7 +148,8 @@ def _ints(flag: str, text: str) -> tuple[int, ...]:
 def run_export(args) -> int:
     from ..sensor_model import build_sensor_model, save_sensor_model
 
-    out = parse_output(args.output, (".npz",))
+    out = check_output_path("-o", args.output, suffixes=(".npz",))
+    check_mesh_args(args)
     t0 = time.perf_counter()
     cache = False if args.no_cache else args.cache_dir
     model = build_sensor_model(design_from_args(args), mesh_settings_from_args(args), args.sigma,
@@ -168,11 +180,17 @@ def run_reconstruct(args) -> int:
     from ..recon.frames import read_frames, reference_frame
 
     method = v.choice("--method", args.method, ("tikhonov", "gn", "dnn"))
-    png = parse_output(args.output, (".png",))
-    npy = parse_output(args.save_images, (".npy",), "--save-images")
+    png = check_output_path("-o", args.output, suffixes=(".png",))
+    npy = check_output_path("--save-images", args.save_images, suffixes=(".npy",))
     lam = _lam(args.lam)
     if lam == "validation":
         raise ParameterError("--lambda", "gcv or a number (validation needs a dataset: use recon-eval)", lam)
+    _check_reconstruct_args(args)
+    from ..recon.frames import FRAME_SUFFIXES
+
+    check_input_file("--frames", args.frames, FRAME_SUFFIXES)
+    check_input_file("--reference", args.reference, FRAME_SUFFIXES)
+    check_input_file("--net", args.net, (".npz",), "an existing network file (recon-train -o)")
     model = _load_model(args.model)
     t0 = time.perf_counter()
     truth = None
@@ -180,7 +198,7 @@ def run_reconstruct(args) -> int:
     if args.touch:
         from ..sensor_model import SensorSimulator
 
-        touches = np.array([_touch(t) for t in args.touch])
+        touches = np.array([_touch(t, model.extent_mm) for t in args.touch])
         img = render_touches(touches, model.sigma0_S_per_m, model.n_pixels, model.extent_mm)
         sim = SensorSimulator(model)
         V = sim.voltages(img)
@@ -189,8 +207,14 @@ def run_reconstruct(args) -> int:
         truth = ((img - model.sigma0_S_per_m) / model.sigma0_S_per_m)[None]
         ref = model.v_ref
     else:
-        V = read_frames(args.frames, model.protocol)
-        ref = reference_frame(args.reference, model.v_ref, model.protocol)
+        try:
+            V = read_frames(args.frames, model.protocol)
+        except ParameterError as exc:
+            raise ParameterError("--frames", exc.expected, exc.got) from None
+        try:
+            ref = reference_frame(args.reference, model.v_ref, model.protocol)
+        except ParameterError as exc:
+            raise ParameterError("--reference", exc.expected, exc.got) from None
     y = relative_change(V, ref)
     lam_used = None
     if method == "dnn":
@@ -229,16 +253,54 @@ def run_reconstruct(args) -> int:
     return 0
 
 
-def _touch(text: str):
+#: Largest --touch conductivity ratio: beyond a 1e6 contrast the forward solve's conditioning leaves fewer
+#: than ten significant digits in double precision (and the paper's touches span 0.05-2).
+MAX_TOUCH_RATIO = 1e6
+#: --snr-db range: below -40 dB the noise is 100 times the signal (an image of noise); above 200 dB it is below
+#: double-precision rounding of the voltages.
+SNR_DB_RANGE = (-40.0, 200.0)
+
+
+def _touch(text: str, extent_mm=None):
+    import math
+
     from ..errors import ParameterError
 
+    form = "X,Y,DIAMETER,RATIO (mm, mm, mm, conductivity / sigma0)"
     try:
         x, y, d, r = (float(s) for s in text.split(","))
     except ValueError:
-        raise ParameterError("--touch", "X,Y,DIAMETER,RATIO (mm, mm, mm, conductivity / sigma0)", text) from None
-    if d <= 0 or r <= 0:
-        raise ParameterError("--touch", "a positive diameter and conductivity ratio", text)
+        raise ParameterError("--touch", form, text) from None
+    if not all(math.isfinite(val) for val in (x, y, d, r)):
+        raise ParameterError("--touch", f"{form}, all finite", text)
+    if not (0 < r <= MAX_TOUCH_RATIO):
+        raise ParameterError("--touch", f"a conductivity ratio 0 < RATIO <= {MAX_TOUCH_RATIO:g}", text)
+    if d <= 0:
+        raise ParameterError("--touch", "a positive diameter", text)
+    if extent_mm is not None:
+        x0, x1, y0, y1 = (float(e) for e in extent_mm)
+        if not (x0 <= x <= x1 and y0 <= y <= y1):
+            raise ParameterError("--touch", f"a centre on the sensor ({x0:g} <= X <= {x1:g}, {y0:g} <= Y <= {y1:g} mm)",
+                                 text)
+        side = max(x1 - x0, y1 - y0)
+        if d > side:
+            raise ParameterError("--touch", f"a diameter 0 < DIAMETER <= {side:g} mm (the sensor side)", text)
     return (x, y, d, r)
+
+
+def _check_reconstruct_args(args) -> None:
+    """reconstruct's numbers, before the model is read: touches' form, --snr-db, --seed, --max-frames, --max-iter."""
+    from .. import _validate as v
+    from ..recon.classical import PRIORS
+
+    for text in args.touch or []:
+        _touch(text)
+    if args.snr_db is not None:
+        v.real("--snr-db", args.snr_db, lo=SNR_DB_RANGE[0], hi=SNR_DB_RANGE[1])
+    v.integer("--seed", args.seed, lo=0)
+    v.integer("--max-frames", args.max_frames, lo=1)
+    v.integer("--max-iter", args.max_iter, lo=1)
+    v.choice("--prior", args.prior, PRIORS)
 
 
 def _peak(model, image):
@@ -253,7 +315,8 @@ def run_train(args) -> int:
     from ..recon.dnn import ReconTrainConfig, save_reconstructor, train_reconstructor
     from ..recon.evaluate import evaluate_methods
 
-    out = parse_output(args.output, (".npz",))
+    out = check_output_path("-o", args.output, suffixes=(".npz",))
+    _check_train_args(args)
     model = _load_model(args.model)
     t0 = time.perf_counter()
     data = _dataset(args, model, DatasetConfig, ReconDataset, generate_dataset)
@@ -277,6 +340,44 @@ def run_train(args) -> int:
     _print_scores({"dnn": scores})
     print(f"wrote {out}")
     return 0
+
+
+def _min_per_count(split=(0.7, 0.2, 0.1)) -> int:
+    """Smallest --per-count whose 7:2:1 split of every touch count leaves at least one sample in each part."""
+    from ..learn.splits import _fractions, _part_sizes
+
+    f = _fractions(split)
+    return next(n for n in range(1, 10_000) if (_part_sizes(n, f) >= 1).all())
+
+
+def _check_train_args(args) -> None:
+    """recon-train's numbers and paths, before the model is read and before any simulation or training."""
+    import math
+
+    from .. import _validate as v
+    from ..errors import ParameterError
+
+    v.integer("--epochs", args.epochs, lo=1)
+    v.integer("--batch-size", args.batch_size, lo=1)
+    if not (math.isfinite(args.lr) and args.lr > 0):
+        raise ParameterError("--lr", "a finite learning rate > 0", args.lr)
+    v.integer("--patience", args.patience, lo=1)
+    if args.threads is not None:
+        v.integer("--threads", args.threads, lo=1)
+    v.integer("--seed", args.seed, lo=0)
+    v.integer("--jobs", args.jobs, lo=1)
+    counts = _ints("--touch-counts", args.touch_counts)
+    if not counts or any(not 1 <= c <= 12 for c in counts):
+        raise ParameterError("--touch-counts", "a comma list of touch counts 1..12", args.touch_counts)
+    existing = False
+    if args.dataset is not None:
+        # an existing dataset is read, a missing one written after the simulation
+        check_output_path("--dataset", args.dataset, suffixes=(".npz",))
+        existing = Path(args.dataset).exists()
+    if not existing:
+        lo = _min_per_count()
+        v.integer("--per-count", args.per_count, lo=lo,
+                  expected=f"an integer >= {lo} (the 7:2:1 split needs one sample per part and touch count)")
 
 
 def _dataset(args, model, DatasetConfig, ReconDataset, generate_dataset):
@@ -311,15 +412,36 @@ def _print_scores(methods: dict) -> None:
     print("  paper (real data, best phantom): CC 0.9275, PSNR 29.03 dB, SSIM 0.9660, RE 0.3798")
 
 
+def _check_eval_args(args) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """recon-eval's lists and numbers, before any file is read; returns (methods, priors)."""
+    from .. import _validate as v
+    from ..errors import ParameterError
+    from ..recon.classical import PRIORS
+    from ..recon.evaluate import METHODS
+
+    methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
+    if not methods or any(m not in METHODS for m in methods):
+        raise ParameterError("--methods", "a comma list of " + ", ".join(METHODS), args.methods)
+    priors = tuple(p.strip() for p in args.prior.split(",") if p.strip())
+    if not priors or any(p not in PRIORS for p in priors):
+        raise ParameterError("--prior", "a comma list of " + ", ".join(PRIORS), args.prior)
+    v.integer("--gn-per-count", args.gn_per_count, lo=1)
+    if args.test_snr_db is not None:
+        v.real("--test-snr-db", args.test_snr_db, lo=SNR_DB_RANGE[0], hi=SNR_DB_RANGE[1])
+    check_input_file("--dataset", args.dataset, (".npz",), "an existing dataset file (recon-train --dataset)")
+    check_input_file("--net", args.net, (".npz",), "an existing network file (recon-train -o)")
+    _lam(args.lam)
+    return methods, priors
+
+
 def run_eval(args) -> int:
     from ..recon.dataset import ReconDataset
     from ..recon.evaluate import evaluate_methods, plot_comparison
 
-    png = parse_output(args.figure, (".png",), "--figure")
+    png = check_output_path("--figure", args.figure, suffixes=(".png",))
+    methods, priors = _check_eval_args(args)
     model = _load_model(args.model)
     data = ReconDataset.load(args.dataset)
-    methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
-    priors = tuple(p.strip() for p in args.prior.split(",") if p.strip())
     result = evaluate_methods(model, data, methods, priors, _lam(args.lam), args.net, args.gn_per_count,
                               args.test_snr_db, progress=not (args.json or args.no_progress))
     if png is not None:

@@ -6,7 +6,7 @@ import argparse
 import math
 import sys
 
-from ._common import emit_json
+from ._common import check_study_file, check_study_outputs, emit_json
 
 
 def register(sub) -> None:
@@ -37,7 +37,10 @@ def run_sensitivity_command(args: argparse.Namespace) -> int:
     if args.jobs is not None and args.jobs < 1:
         raise ParameterError("--jobs", "an integer >= 1", args.jobs)
     variations = [parse_vary(t) for t in args.vary]
+    check_study_file(args.study)
     runs = load_variants(args.study, variations, args.overrides)
+    for run in runs:
+        check_study_outputs(args, run[3])
     root = runs[0][3].out_dir.parent
     say = None if args.json else (lambda msg: print(msg, file=sys.stderr, flush=True))
     rows = run_sensitivity(runs, lambda s: run_sweep(s, jobs=args.jobs, progress=not args.no_progress), say)

@@ -10,7 +10,8 @@ from ._common import (
     add_mesh_args,
     add_physics_arg,
     add_touch_args,
-    check_cache_dir,
+    check_mesh_args,
+    check_touch_count,
     design_from_args,
     emit_json,
     mesh_settings_from_args,
@@ -41,7 +42,8 @@ def register(sub) -> None:
 def run_simulate(args) -> int:
     from ..coupled import CoupledModel, PhysicsSettings
 
-    check_cache_dir(args)
+    check_mesh_args(args)
+    check_touch_count(args)
     design = design_from_args(args)
     touches = touches_from_args(args, design)
     # the dedicated options first, then any --physics KEY=VALUE (checked here, before any meshing)

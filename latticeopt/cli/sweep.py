@@ -4,7 +4,14 @@ from __future__ import annotations
 
 import argparse
 
-from ._common import add_physics_arg, check_parallel_args, physics_overrides, study_overrides
+from ._common import (
+    add_physics_arg,
+    check_parallel_args,
+    check_study_file,
+    check_study_outputs,
+    physics_overrides,
+    study_overrides,
+)
 
 
 def register(sub) -> None:
@@ -41,8 +48,10 @@ def run_sweep_command(args: argparse.Namespace) -> int:
     from ..study import load_study
     from ..sweep import run_sweep
 
+    check_study_file(args.study)
     study = load_study(args.study, study_overrides(args) + physics_overrides(args))
     check_parallel_args(args)
+    check_study_outputs(args, study)
     if args.dry_run:
         stored = 0
         if (Path(study.out_dir) / "results.sqlite").exists():

@@ -86,6 +86,9 @@ def read_frames(path: str | Path, protocol: Protocol | None = None) -> np.ndarra
             raise ParameterError("frames", "a numeric .npy array", f"{path}: {exc}") from None
         if not np.issubdtype(a.dtype, np.number):
             raise ParameterError("frames", "a numeric .npy array", f"{path}: dtype {a.dtype}")
+        if np.iscomplexobj(a):  # casting would silently drop the imaginary part
+            raise ParameterError("frames", "real voltages (for complex frames save np.abs(frames), the magnitude)",
+                                 f"{path}: dtype {a.dtype}")
         a = np.asarray(a, dtype=float)
     else:
         try:

@@ -1,0 +1,240 @@
+"""Each bad argument of issue #17 gives one line on stderr naming the flag, exit status 2, before any work.
+
+The expensive stages are patched to raise (``test_cli_fuzz.Accepted``): a case that reaches one failed to reject
+its argument before meshing, simulation or training.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+
+import numpy as np
+import pytest
+from test_cli_fuzz import _stub_model, make_files, run_cli
+
+from latticeopt.cli import main
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    return make_files(tmp_path_factory.mktemp("args"))
+
+
+#: /proc refuses new files even to root (a chmod 555 folder does not: root writes anyway)
+UNWRITABLE = "/proc/latticeopt-fuzz"
+
+
+def _rejected(argv, files, flag: str, *also: str) -> str:
+    outcome, status, err = run_cli([str(a) for a in argv], files.root)
+    lines = err.splitlines()
+    assert outcome == "returned" and status == 2 and len(lines) == 1, (argv, outcome, status, err)
+    assert "Traceback" not in err and flag in lines[0], (flag, lines)
+    for text in also:
+        assert text in lines[0], (text, lines[0])
+    return lines[0]
+
+
+def _accepted(argv, files) -> None:
+    outcome, status, err = run_cli([str(a) for a in argv], files.root)
+    assert outcome == "accepted" or (outcome == "returned" and status == 0), (argv, outcome, status, err)
+
+
+@pytest.fixture
+def under_file(files):
+    """A path whose parent is a file (no folder can be made there)."""
+    return files.file
+
+
+@pytest.mark.parametrize("argv, flag", [
+    (["mesh", "-o", "{under}/m.vtu"], "-o"),
+    (["mesh", "-o", UNWRITABLE + ".vtu"], "-o"),
+    (["mesh", "-o", "{missing}/m.vtu"], "-o"),
+    (["mesh", "-o", "{dir_vtu}"], "-o"),
+    (["mesh", "--cache-dir", "{file}"], "--cache-dir"),
+    (["mesh", "--cache-dir", UNWRITABLE], "--cache-dir"),
+    (["render", "-o", "{under}/r.png"], "-o"),
+    (["forward", "--plot", "{under}/f.png"], "--plot"),
+    (["forward", "--vtu", UNWRITABLE + ".vtu"], "--vtu"),
+    (["export", "-o", "{under}/s.npz"], "-o"),
+    (["export", "-o", "s.npz", "--cache-dir", "{file}"], "--cache-dir"),
+    (["indent", "--touch", "50,50,8,2", "-o", "{under}/i.vtu"], "-o"),
+    (["simulate", "--touch", "50,50,8,2", "--cache-dir", "{file}"], "--cache-dir"),
+    (["reconstruct", "--model", "{sensor}", "--frames", "{frames}", "-o", "{under}/x.png"], "-o"),
+    (["reconstruct", "--model", "{sensor}", "--frames", "{frames}", "-o", "x.png", "--save-images",
+      UNWRITABLE + ".npy"], "--save-images"),
+    (["recon-eval", "--model", "{sensor}", "--dataset", "{dataset}", "--figure", "{under}/e.png"], "--figure"),
+    (["recon-train", "--model", "{sensor}", "-o", "{under}/net.npz"], "-o"),
+    (["recon-train", "--model", "{sensor}", "-o", UNWRITABLE + ".npz"], "-o"),
+    (["classify-train", "--model", "{sensor}", "--out", "{under}/g"], "--out"),
+    (["classify-train", "--model", "{sensor}", "--out", "{file}"], "--out"),
+    (["classify-train", "--model", "{sensor}", "--cache-dir", "{file}"], "--cache-dir"),
+    (["sweep", "{study}", "--out", UNWRITABLE], "--out"),
+    (["sweep", "{study}", "--out", UNWRITABLE, "--dry-run"], "--out"),
+    (["sweep", "{study}", "--out", "{file}", "--dry-run"], "--out"),
+    (["sweep", "{study}", "--set", "cache_dir={file_toml}", "--dry-run"], "cache_dir"),
+    (["optimize", "{opt_study}", "--out", "{file}", "--dry-run"], "--out"),
+    (["optimize", "{opt_study}", "--out", UNWRITABLE, "--dry-run"], "--out"),
+    (["sensitivity", "{study}", "--vary", "rim=channel", "--set", "out={file_toml}"], "out"),
+    (["calibrate", "{presses}", "--fit", "hydrogel_shear_kPa=1:50", "--out", "{file}"], "--out"),
+])
+def test_unwritable_outputs_are_rejected_before_any_work(argv, flag, files):
+    if argv[0] == "classify-train":
+        pytest.importorskip("torch")
+    (files.root / "d.vtu").mkdir(exist_ok=True)
+    names = {"under": files.file, "missing": files.root / "no_such_folder", "dir_vtu": files.root / "d.vtu",
+             "file": files.file, "sensor": files.sensor, "frames": files.frames, "dataset": files.dataset,
+             "study": files.study, "opt_study": files.opt_study, "presses": files.presses,
+             "file_toml": json.dumps(str(files.file))}
+    _rejected([a.format(**names) for a in argv], files, flag)
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root writes into a read-only folder")
+def test_a_read_only_folder_is_rejected(files, tmp_path):
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o555)
+    try:
+        _rejected(["sweep", files.study, "--out", ro / "run", "--dry-run"], files, "--out")
+        _rejected(["mesh", "-o", ro / "m.vtu"], files, "-o")
+    finally:
+        ro.chmod(0o755)
+
+
+def test_good_outputs_reach_the_work(files, tmp_path):
+    _accepted(["mesh", "-o", tmp_path / "m.vtu", "--cache-dir", tmp_path / "new" / "cache"], files)
+    _accepted(["simulate", "--touch", "50,50,8.75,2", "--touch", "20,20,5,1"], files)
+    _accepted(["reconstruct", "--model", files.sensor, "--touch", "50,50,10,0.5", "-o", tmp_path / "r.png",
+               "--snr-db", "40"], files)
+    _accepted(["sweep", files.study, "--out", tmp_path / "runs" / "s"], files)
+    _accepted(["sweep", files.study, "--out", tmp_path / "runs" / "s", "--dry-run"], files)
+    assert not (tmp_path / "runs").exists()  # checking created nothing
+    _accepted(["recon-train", "--model", files.sensor, "-o", tmp_path / "n.npz", "--per-count", "6"], files)
+
+
+def test_study_file_not_utf8_and_evaluate_not_callable(files):
+    _rejected(["sweep", files.binary], files, "STUDY", "UTF-8")
+    _rejected(["optimize", files.binary, "--dry-run"], files, "STUDY", "UTF-8")
+    _rejected(["sensitivity", files.binary, "--vary", "rim=channel"], files, "STUDY", "UTF-8")
+    _rejected(["sweep", files.study, "--evaluate", "os:sep", "--dry-run"], files, "--evaluate", "callable")
+    _rejected(["sweep", files.study, "--evaluate", "math:pi"], files, "--evaluate", "callable")
+    _rejected(["sweep", files.study, "--evaluate", "no_such_module_x:f", "--dry-run"], files, "--evaluate")
+
+
+def test_study_physics_and_depth_range(files):
+    # the complete electrode model divides by z_c: 0 would be accepted and then fail every phantom
+    _rejected(["sweep", files.study, "--set", "physics.contact_impedance_ohm_m2=0", "--dry-run"], files,
+              "contact_impedance_ohm_m2")
+    _rejected(["sweep", files.study, "--physics", "contact_impedance_ohm_m2=0", "--dry-run"], files,
+              "--physics contact_impedance_ohm_m2")
+    _rejected(["simulate", "--touch", "50,50,8,2", "--contact-impedance", "0"], files, "contact_impedance")
+    # a 9 mm stack: the range [1, 12] is refused whatever the draws (here one phantom, likely drawn < 9 mm)
+    line = _rejected(["sweep", files.study, "--set", "phantoms.depth_mm=[1,12]", "--dry-run"], files,
+                     "phantoms.depth_mm", "< 9")
+    assert "[1.0, 12.0]" in line or "[1, 12]" in line
+
+
+def test_physics_settings_reject_zero_contact_impedance():
+    from latticeopt.coupled import PhysicsSettings
+    from latticeopt.errors import ParameterError
+
+    with pytest.raises(ParameterError, match="contact_impedance_ohm_m2"):
+        PhysicsSettings(contact_impedance_ohm_m2=0.0)
+
+
+@pytest.mark.parametrize("touch", ["nan,50,10,0.5", "150,50,10,0.5", "50,-1,10,0.5", "50,50,inf,0.5",
+                                   "50,50,1e9,0.5", "50,50,10,inf", "50,50,10,0", "50,50,-3,0.5", "50,50,10"])
+def test_reconstruct_touch_values(touch, files):
+    _rejected(["reconstruct", "--model", files.sensor, "--touch", touch, "-o", "x.png"], files, "--touch")
+
+
+@pytest.mark.parametrize("flag, value", [("--snr-db", "nan"), ("--snr-db", "-1000"), ("--seed", "-1"),
+                                         ("--max-frames", "0"), ("--prior", "x")])
+def test_reconstruct_numbers(flag, value, files):
+    _rejected(["reconstruct", "--model", files.sensor, "--touch", "50,50,10,0.5", "-o", "x.png", f"{flag}={value}"],
+              files, flag)
+
+
+def test_complex_frames_are_refused(files):
+    _rejected(["reconstruct", "--model", files.sensor, "--frames", files.complex_frames, "-o", "x.png"], files,
+              "--frames", "np.abs")
+    _rejected(["classify", "--model", files.classifier, "--frames", files.complex_sequences], files,
+              "--frames", "np.abs")
+
+
+@pytest.mark.parametrize("flag, value, text", [
+    ("--epochs", "0", ""), ("--batch-size", "0", ""), ("--lr", "nan", ""), ("--lr", "0", ""),
+    ("--patience", "0", ""), ("--threads", "0", ""), ("--dataset", "data.txt", ".npz"),
+    ("--per-count", "5", ">= 6"), ("--per-count", "0", ">= 6"), ("--touch-counts", "0,1", ""),
+    ("--seed", "-1", ""), ("--jobs", "0", ""),
+])
+def test_recon_train_arguments(flag, value, text, files, tmp_path):
+    _rejected(["recon-train", "--model", files.sensor, "-o", tmp_path / "n.npz", f"{flag}={value}"], files, flag,
+              text)
+
+
+def test_recon_eval_arguments(files):
+    base = ["recon-eval", "--model", files.sensor, "--dataset", files.dataset]
+    _rejected(base + ["--gn-per-count=-1"], files, "--gn-per-count")
+    _rejected(base + ["--methods", ","], files, "--methods", "background")
+    _rejected(base + ["--methods", "tikhonov,foo"], files, "--methods")
+    _rejected(base + ["--prior", ","], files, "--prior")
+    _rejected(base + ["--test-snr-db", "nan"], files, "--test-snr-db")
+    _rejected(["recon-eval", "--model", files.sensor, "--dataset", files.root / "missing.npz"], files, "--dataset")
+
+
+def test_classify_train_snr(files):
+    pytest.importorskip("torch")
+    _rejected(["classify-train", "--model", files.sensor, "--snr", "-1000", "-999"], files, "--snr")
+    _rejected(["classify-train", "--model", files.sensor, "--snr", "nan", "40"], files, "--snr")
+    _rejected(["classify-train", "--model", files.sensor, "--snr", "60", "40"], files, "--snr")
+
+
+@pytest.mark.parametrize("cmd", ["indent", "simulate"])
+def test_touch_count_matches_the_help(cmd, files):
+    from latticeopt.cli import build_parser
+    from latticeopt.cli._common import MAX_CLI_TOUCHES
+
+    parser = build_parser()
+    sub = next(a for a in parser._actions if a.dest == "command").choices[cmd]
+    touch_help = next(a.help for a in sub._actions if a.dest == "touch")
+    assert MAX_CLI_TOUCHES == 3 and "up to three touches" in touch_help
+    touches = ["20,20,5,1", "80,20,5,1", "20,80,5,1", "80,80,5,1"]
+    argv = [cmd]
+    for t in touches:
+        argv += ["--touch", t]
+    _rejected(argv, files, "--touch", "1 to 3")
+    _accepted(argv[:7], files)
+
+
+def test_mesh_width_below_the_smallest_channel(files):
+    _rejected(["mesh", "--width", "0.001"], files, "--width", "0.05")
+
+
+def test_mesh_options_named_by_flag(files):
+    _rejected(["mesh", "--layer-cells", "0"], files, "--layer-cells")
+    _rejected(["mesh", "--size", "nan"], files, "--size")
+
+
+def test_recon_eval_json_is_strict(monkeypatch, capsys, files):
+    """--json writes null for a NaN score (e.g. SSIM of an empty image), never NaN."""
+    import latticeopt.recon.dataset
+    import latticeopt.recon.evaluate
+    import latticeopt.sensor_model
+
+    scores = {"n": 1, "cc": float("nan"), "psnr": float("inf"), "ssim": 0.5, "re": 1.0}
+    result = {"methods": {"tikhonov/laplacian": {"overall": scores, "by_touches": {1: scores}, "n": 1,
+                                                  "seconds_per_frame": 0.1, "lambda_relative": None}}}
+    monkeypatch.setattr(latticeopt.sensor_model, "load_sensor_model", lambda path: _stub_model())
+    monkeypatch.setattr(latticeopt.recon.dataset.ReconDataset, "load", classmethod(lambda cls, path: None))
+    monkeypatch.setattr(latticeopt.recon.evaluate, "evaluate_methods", lambda *a, **k: result)
+    assert main(["recon-eval", "--model", str(files.sensor), "--dataset", str(files.dataset), "--methods",
+                 "tikhonov", "--json"]) == 0
+    out = capsys.readouterr().out
+
+    def reject(name):
+        raise ValueError(name)
+
+    data = json.loads(out, parse_constant=reject)
+    assert data["methods"]["tikhonov/laplacian"]["overall"]["cc"] is None
+    assert np.isfinite(data["methods"]["tikhonov/laplacian"]["overall"]["ssim"])
