@@ -30,6 +30,9 @@ from latticeopt.sweep import run_sweep
 TESTS = Path(__file__).parent
 LOG_ENV = "LATTICEOPT_TEST_EVAL_LOG"
 DELAY_ENV = "LATTICEOPT_TEST_EVAL_DELAY"
+#: "N:PATH": once N evaluations are in the log, every further one waits until PATH exists (a condition, not a
+#: sleep: a run held this way cannot finish before the test interrupts it, however busy the machine)
+GATE_ENV = "LATTICEOPT_TEST_EVAL_GATE"
 
 
 def _fake_value(design, phantom) -> float:
@@ -44,6 +47,13 @@ def fake_evaluate(design, phantom, settings) -> dict:
         time.sleep(delay)
     v = _fake_value(design, phantom)
     log = os.environ.get(LOG_ENV)
+    gate = os.environ.get(GATE_ENV)
+    if gate and log:
+        n, _, release = gate.partition(":")
+        logged = len(Path(log).read_text().splitlines()) if os.path.exists(log) else 0
+        deadline = time.monotonic() + 900
+        while logged >= int(n) and not os.path.exists(release) and time.monotonic() < deadline:
+            time.sleep(0.05)
     if log:
         with open(log, "a") as fh:
             fh.write(f"{design.content_hash()} {phantom.key}\n")
@@ -332,9 +342,10 @@ def _store_keys(path: Path) -> set[tuple[str, str]]:
 
 
 def _start_cli_and_wait_for_rows(tmp_path: Path, out: Path, n_rows: int, log: str):
-    """Start ``latticeopt sweep`` (2 workers, slow test double) in its own session; return once rows exist."""
+    """Start ``latticeopt sweep`` (2 workers, test double held after ``n_rows`` evaluations until a file that
+    is never made appears) in its own session; return once ``n_rows`` rows are stored. Waits on conditions only."""
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(TESTS), os.environ.get("PYTHONPATH", "")]),
-           DELAY_ENV: "1.0", LOG_ENV: str(tmp_path / log)}
+           DELAY_ENV: "0", LOG_ENV: str(tmp_path / log), GATE_ENV: f"{n_rows}:{tmp_path / 'never_released'}"}
     cmd = [sys.executable, "-m", "latticeopt", "sweep", str(tmp_path / "study.toml"), "--evaluate",
            "test_sweep:fake_evaluate", "--jobs", "2", "--no-progress", "--out", str(out)]
     # A shell that runs the tests as a background job starts them with SIGINT ignored, and a child would inherit
@@ -342,7 +353,7 @@ def _start_cli_and_wait_for_rows(tmp_path: Path, out: Path, n_rows: int, log: st
     proc = subprocess.Popen(cmd, env=env, start_new_session=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     db = out / "results.sqlite"
-    deadline = time.monotonic() + 60
+    deadline = time.monotonic() + 600  # generous: a busy machine starts the workers slowly
     while time.monotonic() < deadline and proc.poll() is None:
         if db.exists():
             try:
@@ -370,6 +381,7 @@ def test_sigkill_mid_run_then_resume(tmp_path):
         assert store.integrity_check() == "ok"
 
     env.update({DELAY_ENV: "0", LOG_ENV: str(tmp_path / "run2.log")})
+    del env[GATE_ENV]
     done = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     recomputed = {tuple(line.split()) for line in (tmp_path / "run2.log").read_text().splitlines()}
@@ -399,13 +411,13 @@ def test_ctrl_c_stops_workers_and_leaves_store_consistent(tmp_path):
     out = tmp_path / "interrupted"
     proc, cmd, env = _start_cli_and_wait_for_rows(tmp_path, out, 2, "run1.log")
     os.killpg(proc.pid, signal.SIGINT)  # what a terminal sends to the foreground group on Ctrl-C
-    _, err = proc.communicate(timeout=30)
+    _, err = proc.communicate(timeout=300)
     assert proc.returncode == 130 and "interrupted" in err and "Traceback" not in err
-    assert _live_processes_in_group(proc.pid) == []  # no worker left behind
+    assert _live_processes_in_group(proc.pid, wait_s=60) == []  # no worker left behind
     with ResultStore(out, readonly=True) as store:
         assert store.integrity_check() == "ok" and 2 <= len(store) < 16
-    env[DELAY_ENV] = "0"
-    assert subprocess.run(cmd, env=env, capture_output=True, timeout=120).returncode == 0
+    del env[GATE_ENV]
+    assert subprocess.run(cmd, env=env, capture_output=True, timeout=600).returncode == 0
     assert len(_store_keys(out)) == 16
 
 
