@@ -104,7 +104,25 @@ def _stub_model():
                                  v_ref=np.linspace(1.0, 2.0, 208), sigma0_S_per_m=0.00312, fingerprint="stub")
 
 
+def _import_everything() -> None:
+    """Import every latticeopt module before any patching: a module first imported while a stage is patched
+    would keep the stand-in (``from .classical import GaussNewton``) after the patch is undone."""
+    import importlib
+    import pkgutil
+
+    import latticeopt
+
+    for info in pkgutil.walk_packages(latticeopt.__path__, "latticeopt."):
+        if info.name.endswith("__main__"):
+            continue
+        try:
+            importlib.import_module(info.name)
+        except ImportError:  # an extra that is not installed (torch, dask): the CLI reports it itself
+            pass
+
+
 def _patch_stages(mp: pytest.MonkeyPatch) -> None:
+    _import_everything()
     import latticeopt.calibrate
     import latticeopt.coupled
     import latticeopt.gestures
