@@ -86,8 +86,13 @@ def test_compression_approaches_the_incompressible_neo_hookean_limit():
     # P = mu (lambda - lambda^-2); the compressible energy's deviation shrinks like mu / kappa
     stretch = 0.6
     exact = MU_KPA * 1e-3 * (stretch - stretch ** -2)
-    errors = [abs(_compress(nu, stretch)[0] / exact - 1.0) for nu in (0.49, 0.499, 0.4999)]
-    assert errors[2] < 1e-4  # measured 5.3e-5 (0.49: 5.4e-3, 0.499: 5.3e-4)
+    nus = (0.49, 0.499, 0.4999)
+    errors = [abs(_compress(nu, stretch)[0] / exact - 1.0) for nu in nus]
+    # Bound from the model, not from its output: the deviation is first order in mu / kappa (the volume change
+    # that relieves a pressure of order mu is of order mu / kappa), with an O(1) coefficient; the convergence
+    # argument is the ratio below (10x kappa, 10x smaller error). (Measured: 5.4e-3, 5.3e-4, 5.3e-5.)
+    mu_over_kappa = [3 * (1 - 2 * nu) / (2 * (1 + nu)) for nu in nus]
+    assert all(e < m for e, m in zip(errors, mu_over_kappa)), (errors, mu_over_kappa)
     assert errors[0] > errors[1] > errors[2]
     assert errors[1] / errors[2] == pytest.approx(10.0, rel=0.2)  # ~ mu / kappa
 
