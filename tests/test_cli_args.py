@@ -238,3 +238,20 @@ def test_recon_eval_json_is_strict(monkeypatch, capsys, files):
     data = json.loads(out, parse_constant=reject)
     assert data["methods"]["tikhonov/laplacian"]["overall"]["cc"] is None
     assert np.isfinite(data["methods"]["tikhonov/laplacian"]["overall"]["ssim"])
+
+
+def test_documented_classify_example_names_a_file_classify_train_writes():
+    """docs/gestures.md: `classify --model <classify-train --out>/gesture_lstm.npz` (a model file, not a folder;
+    the README no longer shows `classify --model models/`). test_gestures_classify checks the files written."""
+    import re
+    import shlex
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    text = (root / "docs" / "gestures.md").read_text()
+    assert "--model models/" not in (root / "README.md").read_text() + text
+    train = shlex.split(re.search(r"latticeopt classify-train .*", text).group(0))
+    use = shlex.split(re.search(r"latticeopt classify --model .*", text).group(0))
+    model = Path(use[use.index("--model") + 1])
+    assert model.parent == Path(train[train.index("--out") + 1])
+    assert model.name in ("gesture_cnn.npz", "gesture_lstm.npz")
