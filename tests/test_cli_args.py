@@ -255,3 +255,9 @@ def test_documented_classify_example_names_a_file_classify_train_writes():
     model = Path(use[use.index("--model") + 1])
     assert model.parent == Path(train[train.index("--out") + 1])
     assert model.name in ("gesture_cnn.npz", "gesture_lstm.npz")
+
+
+@pytest.mark.parametrize("size", ["1e308", "1e6"])
+def test_huge_sensor_is_rejected_before_the_layout_is_built(size, files):
+    _rejected(["render", "--sensor-size", size], files, "--sensor-size", "400 pitches")
+    _rejected(["mesh", "--sensor-size", size, "--pitch", "20"], files, "--sensor-size", "8000 mm")

@@ -283,6 +283,26 @@ def check_mesh_args(args: argparse.Namespace) -> None:
         raise ParameterError(flags.get(exc.name, exc.name), exc.expected, exc.got) from None
     if not getattr(args, "no_cache", False) and getattr(args, "cache_dir", None) is not None:
         check_output_path("--cache-dir", args.cache_dir, kind="dir")
+    check_sensor_size(args)
+
+
+#: Largest --sensor-size in lattice pitches: the layout is built channel by channel (a 1e308 mm side was a
+#: traceback, 1e6 mm took gigabytes before any check); 400 pitches is 5 m at the default 12.5 mm.
+MAX_PITCHES_PER_SIDE = 400
+
+
+def check_sensor_size(args: argparse.Namespace) -> None:
+    """``--sensor-size`` at most :data:`MAX_PITCHES_PER_SIDE` lattice pitches (before the layout is built)."""
+    import math
+
+    d = LatticeDesign()
+    size = getattr(args, "size_mm", None)
+    pitch = getattr(args, "pitch_mm", None) or d.pitch_mm
+    if size is None or not (isinstance(pitch, float | int) and math.isfinite(pitch) and pitch > 0):
+        return  # the design's own checks name a bad pitch
+    if math.isfinite(size) and size > MAX_PITCHES_PER_SIDE * pitch:
+        raise ParameterError("--sensor-size", f"a side of at most {MAX_PITCHES_PER_SIDE} pitches "
+                             f"({MAX_PITCHES_PER_SIDE * pitch:g} mm at --pitch {pitch:g})", size)
 
 
 #: ``--touch`` may be given this often (``indent`` and ``simulate``; their --help says "up to three touches").
