@@ -354,6 +354,16 @@ def test_cache_key_follows_what_determines_the_mesh():
     assert mesh_key(d, dataclasses.replace(s, mesher="grid")) == key
     hexa = LatticeDesign(pattern="hexagonal", width_mm=3.0)
     assert mesh_key(hexa, s) == mesh_key(hexa, dataclasses.replace(s, mesher="extruded"))
+    # the footprint itself: the same fields drawn differently (here: leads added by the layout code) rebuild
+    import shapely
+
+
+    real = LatticeDesign.footprint
+    try:
+        LatticeDesign.footprint = lambda self: shapely.box(0, 0, 1, 1).union(real(self))
+        assert mesh_key(LatticeDesign(), s) != key
+    finally:
+        LatticeDesign.footprint = real
     # the package version: a new release rebuilds its meshes
     import latticeopt
 

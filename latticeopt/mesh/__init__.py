@@ -124,14 +124,19 @@ def default_cache_dir() -> Path:
 def mesh_key(design: LatticeDesign, settings: MeshSettings) -> str:
     """Content hash of everything that determines the mesh.
 
-    The design's fields, every field of the *resolved* settings (``"auto"`` replaced by the mesher it picks,
-    options a mesher ignores included), the mesh file format and the package version: a new version
-    rebuilds its meshes rather than trusting a hand-kept revision number.
+    The design's fields, its hydrogel footprint itself (so a change in how a layout is drawn, such as where
+    leads go, rebuilds the mesh even when the fields are the same), every field of the *resolved* settings
+    (``"auto"`` replaced by the mesher it picks, options a mesher ignores included), the mesh file format and the
+    package version: a new version rebuilds its meshes rather than trusting a hand-kept revision number.
     """
+    import shapely
+
     from .. import __version__  # read at call time: the package imports this module before defining it
 
-    payload = {"design": design.as_dict(), "settings": dataclasses.asdict(settings.resolved(design)),
-               "format": FORMAT_VERSION, "version": __version__}
+    footprint = hashlib.sha256(shapely.to_wkb(shapely.normalize(design.footprint()), hex=True).encode()).hexdigest()
+    payload = {"design": design.as_dict(), "footprint": footprint,
+               "settings": dataclasses.asdict(settings.resolved(design)), "format": FORMAT_VERSION,
+               "version": __version__}
     return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()
 
 
