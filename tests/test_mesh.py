@@ -357,7 +357,6 @@ def test_cache_key_follows_what_determines_the_mesh():
     # the footprint itself: the same fields drawn differently (here: leads added by the layout code) rebuild
     import shapely
 
-
     real = LatticeDesign.footprint
     try:
         LatticeDesign.footprint = lambda self: shapely.box(0, 0, 1, 1).union(real(self))
