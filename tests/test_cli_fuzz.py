@@ -319,7 +319,7 @@ def check_outcome(argv, outcome, status, err) -> None:
 def test_every_argument_is_checked_before_any_work(cmd, files):
     pytest.importorskip("torch") if cmd in ("classify-train",) else None
 
-    @settings(max_examples=25, deadline=None, derandomize=True, database=None,
+    @settings(max_examples=20, deadline=None, derandomize=True, database=None,
               suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
     @given(command_lines(cmd, files))
     def prop(argv):
