@@ -35,6 +35,9 @@ from . import layout as _layout
 from .errors import ParameterError
 from .layout import PATTERNS, RIMS
 
+#: Most channel pitches across the sensor.
+MAX_PITCHES = 200
+
 #: Narrowest channel (mm): below it a layout is no longer castable, and meshes of it degenerate.
 MIN_WIDTH_MM = 0.05
 
@@ -107,12 +110,15 @@ class LatticeDesign:
         set_(self, "rim", v.choice("rim", self.rim, RIMS))
         if self.electrode_leads not in (True, False):
             raise ParameterError("electrode_leads", "true or false", self.electrode_leads)
-        set_(self, "size_mm", v.real("size_mm", self.size_mm, lo=0, lo_open=True))
+        set_(self, "size_mm", v.real("size_mm", self.size_mm, lo=0, lo_open=True, hi=1e4))
         set_(self, "total_thickness_mm",
              v.real("total_thickness_mm", self.total_thickness_mm, lo=0, lo_open=True))
         set_(self, "sealing_mm", v.real("sealing_mm", self.sealing_mm, lo=0,
                                         hi=self.total_thickness_mm, hi_open=True))
         set_(self, "pitch_mm", v.real("pitch_mm", self.pitch_mm, lo=0, lo_open=True, hi=self.size_mm))
+        if self.size_mm / self.pitch_mm > MAX_PITCHES:  # a layout of more cells than that is no sensor, and slow
+            raise ParameterError("pitch_mm", f"at least size_mm / {MAX_PITCHES} = {self.size_mm / MAX_PITCHES:g} mm",
+                                 self.pitch_mm)
         room = self.total_thickness_mm - self.sealing_mm
         set_(self, "thickness_mm", v.real(
             "thickness_mm", self.thickness_mm, lo=0, lo_open=True, hi=room,
