@@ -212,7 +212,7 @@ def _value(cmd: str, action: argparse.Action, f) -> st.SearchStrategy[str]:
         return _paths(f, ".geojson", [str(f.layout)])
     if dest in ("method", "methods", "prior", "lam", "touch_counts", "pattern", "rim"):
         good = {"method": ["tikhonov", "gn", "dnn"], "methods": ["background,tikhonov", "gn", "dnn", ","],
-                "prior": ["laplacian", "noser", "identity,noser"], "lam": ["gcv", "validation", "0.01", "-1"],
+                "prior": ["laplacian", "noser", "identity,noser"], "lam": ["lcurve", "gcv", "validation", "0.01", "-1"],
                 "touch_counts": ["1,2", "1", "0", "13"], "pattern": ["square", "hexagonal", "custom"],
                 "rim": ["none", "channel"]}[dest]
         return st.one_of(st.sampled_from(good), texts, floats)

@@ -93,3 +93,46 @@ def test_laplacian_is_symmetric_with_constants_in_its_null_space():
     assert abs(L - L.T).max() == 0
     np.testing.assert_allclose(L @ np.ones(49), 0)
     assert L[0, 0] == 2 and L[8, 8] == 4  # corner and interior pixel
+
+
+@pytest.mark.parametrize("prior", ["identity", "laplacian"])
+def test_lcurve_norms_match_direct_solves(sim, frame, prior):
+    """The L-curve's residual and prior norms from the eigenvalues equal those of explicit solves, and the corner
+    is where the curvature of that curve (by finite differences here) is largest."""
+    lin = LinearReconstructor(sim.model, prior)
+    grid = np.logspace(-8, 0, 33)
+    lam, kappa = lin.lcurve(frame[None], grid)
+    A, b = lin.A, lin.w * frame
+    P = lin.prior.matrix.toarray()
+    X, Y = [], []
+    for rel in grid:
+        x, _ = lin.solve(frame[None], rel * lin.eigenvalues.max())
+        X.append(0.5 * np.log(np.sum((A @ x[0] - b) ** 2)))
+        Y.append(0.5 * np.log(x[0] @ P @ x[0]))
+    t = np.log(grid * lin.eigenvalues.max())
+    dX, dY = np.gradient(X, t), np.gradient(Y, t)
+    brute = (dX * np.gradient(dY, t) - np.gradient(dX, t) * dY) / (dX ** 2 + dY ** 2) ** 1.5
+    np.testing.assert_allclose(kappa[0], brute, rtol=1e-5, atol=1e-8 * np.abs(brute).max())
+    assert lam[0] == pytest.approx(grid[np.argmax(brute)] * lin.eigenvalues.max())
+
+
+def test_noise_free_frame_lcurve_stays_inside_its_grid_and_gcv_warns(sim, caplog):
+    m = sim.model
+    img = render_touches(np.array([[30.0, 30.0, 15.0, 0.3], [70.0, 60.0, 12.0, 0.3]]), m.sigma0_S_per_m)
+    y = relative_change(sim.voltages(img), m.v_ref)
+    lin = LinearReconstructor(m, "laplacian")
+    g_max = lin.eigenvalues.max()
+    with caplog.at_level("WARNING"):
+        lam_l = lin.lambdas(y, "lcurve")[0] / g_max
+    assert 1e-9 < lam_l < 10 and not caplog.records
+    with caplog.at_level("WARNING"):
+        lam_g = lin.lambdas(y, "gcv")[0] / g_max
+    assert lam_g == pytest.approx(1e-9) and "end of its range" in caplog.text
+
+
+def test_gauss_newton_warns_when_pixels_sit_on_the_bounds(sim, frame, caplog):
+    with caplog.at_level("WARNING"):
+        res = GaussNewton(sim, "identity", max_iter=3).reconstruct(frame[None] * 50, lam=1e-12)
+    held = np.isclose(np.log1p(res.images[0]), np.log(1e-2)) | np.isclose(np.log1p(res.images[0]), np.log(1e2))
+    assert held.any() == ("conductivity bounds" in caplog.text)
+    assert held.any()

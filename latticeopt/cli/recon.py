@@ -96,10 +96,10 @@ def _add_method_args(p, multi_prior: bool = False) -> None:
     g = p.add_argument_group("methods")
     g.add_argument("--prior", default="laplacian", help="identity, noser or laplacian" +
                    (" (comma list)" if multi_prior else "") + "; default laplacian (best in benchmarks/bench_recon.py)")
-    g.add_argument("--lambda", dest="lam", default="gcv",
-                   help="regularization: gcv (per frame), " + ("validation (tuned on the validation part), "
-                                                              if multi_prior else "") +
-                        "or a number relative to the largest eigenvalue of A P^-1 A^T; default gcv")
+    g.add_argument("--lambda", dest="lam", default="lcurve",
+                   help="regularization: lcurve (L-curve corner per frame), gcv (per frame; needs noise), " +
+                        ("validation (tuned on the validation part), " if multi_prior else "") +
+                        "or a number relative to the largest eigenvalue of A P^-1 A^T; default lcurve")
     if not multi_prior:
         g.add_argument("--net", default=None, help="network file (method dnn)")
         g.add_argument("--max-iter", type=int, default=6, help="gn: iterations; default 6")
@@ -128,12 +128,12 @@ def _load_model(path):
 def _lam(text: str):
     from ..errors import ParameterError
 
-    if text in ("gcv", "validation"):
+    if text in ("lcurve", "gcv", "validation"):
         return text
     try:
         return float(text)
     except ValueError:
-        raise ParameterError("--lambda", "gcv, validation or a positive number", text) from None
+        raise ParameterError("--lambda", "lcurve, gcv, validation or a positive number", text) from None
 
 
 def _ints(flag: str, text: str) -> tuple[int, ...]:
@@ -184,7 +184,7 @@ def run_reconstruct(args) -> int:
     npy = check_output_path("--save-images", args.save_images, suffixes=(".npy",))
     lam = _lam(args.lam)
     if lam == "validation":
-        raise ParameterError("--lambda", "gcv or a number (validation needs a dataset: use recon-eval)", lam)
+        raise ParameterError("--lambda", "lcurve, gcv or a number (validation needs a dataset: use recon-eval)", lam)
     _check_reconstruct_args(args)
     from ..recon.frames import FRAME_SUFFIXES
 
@@ -227,7 +227,8 @@ def run_reconstruct(args) -> int:
         from ..recon.classical import GaussNewton, LinearReconstructor
 
         lin = LinearReconstructor(model, args.prior)
-        lam_abs = lam if lam == "gcv" else v.real("--lambda", lam, lo=0, lo_open=True) * lin.eigenvalues.max()
+        lam_abs = lam if lam in ("lcurve", "gcv") else (v.real("--lambda", lam, lo=0, lo_open=True)
+                                                         * lin.eigenvalues.max())
         if method == "tikhonov":
             x, lam_used = lin.solve(y, lam_abs)
             images = x.reshape(-1, model.n_pixels, model.n_pixels)

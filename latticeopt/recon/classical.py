@@ -22,7 +22,14 @@ with a prior ``P`` (:data:`PRIORS`):
 One step (:class:`LinearReconstructor`) solves it in data space, ``x = P^-1 A^T (G + lambda I)^-1 b`` with
 ``G = A P^-1 A^T = Q diag(g) Q^T`` decomposed once, so any ``lambda`` costs two small products per frame.
 
-Regularization rule: generalized cross-validation (GCV, Golub, Heath and Wahba 1979), per frame,
+Regularization rules, per frame, over :data:`GCV_GRID`: the L-curve corner (default, Hansen 1992): the point of
+largest curvature of ``(log ||A x - b||, log (x^T P x)^0.5)`` as lambda runs over the grid, both norms exact from
+the eigenvalues. Noise-free simulated frames have no noise for GCV to find, and GCV then drifts to the smallest
+lambda of the grid (a two-touch frame gave 1e-9 and a Gauss-Newton image clipped at its bounds); the corner stays
+inside the grid there and with noise. Either rule ending on the first or last grid point is logged as a warning,
+and so is a Gauss-Newton image with pixels held at :data:`LOG_BOUNDS`.
+
+Generalized cross-validation (GCV, Golub, Heath and Wahba 1979),
 ``lambda = argmin ||(I - H) b||^2 / trace(I - H)^2`` with the influence matrix ``H = G (G + lambda I)^-1``,
 evaluated exactly from the eigenvalues over :data:`GCV_GRID` (relative to the largest eigenvalue). A 208-row
 frame carries its own noise estimate: reciprocal rows duplicate each other in ``A``, so the half of ``b`` that
@@ -31,7 +38,7 @@ be given instead of ``"gcv"``.
 
 Iterative Gauss-Newton (:class:`GaussNewton`) fits the nonlinear forward model of the sensor in the log
 conductivity ``s = log(sigma / sigma0)`` (positivity for free; ``s`` kept in :data:`LOG_BOUNDS`), with the
-same prior and weights, ``lambda`` chosen by GCV on the first (background) linearization and kept, a
+same prior and weights, ``lambda`` chosen by the rule on the first (background) linearization and kept, a
 backtracking line search on the objective and a stop when it falls by less than ``tol`` relatively. It starts
 from the one-step solution.
 """
@@ -52,6 +59,8 @@ from ..sensor_model import SensorModel, SensorSimulator
 log = logging.getLogger(__name__)
 
 PRIORS = ("identity", "noser", "laplacian")
+#: Rules choosing lambda per frame (the first is the default).
+LAMBDA_RULES = ("lcurve", "gcv")
 #: GCV search grid: lambda / max eigenvalue of ``A P^-1 A^T``.
 GCV_GRID = np.logspace(-9, 1, 101)
 #: Box of log(sigma / sigma0) for iterative Gauss-Newton: conductivity stays within 0.01 to 100 sigma0 (the
@@ -164,21 +173,52 @@ class LinearReconstructor:
         curve = num / den[None, :]
         return lam[np.argmin(curve, axis=1)], curve
 
-    def lambdas(self, y: np.ndarray, lam="gcv") -> np.ndarray:
+    def lcurve(self, y: np.ndarray, grid: np.ndarray = GCV_GRID) -> tuple[np.ndarray, np.ndarray]:
+        """L-curve corner per frame: the lambda of largest curvature of the log-log L-curve.
+
+        Returns
+        -------
+        lam : ndarray, shape (k,)
+            The corner over ``grid * max eigenvalue``.
+        curvature : ndarray, shape (k, len(grid))
+            Signed curvature of ``(log residual norm, log prior seminorm)`` against ``log lambda``.
+        """
+        beta2 = self._beta(y) ** 2
+        lam = np.asarray(grid) * self.eigenvalues.max()
+        g = self.eigenvalues[None, :]
+        rho = beta2 @ ((lam[:, None] / (g + lam[:, None])) ** 2).T  # ||A x - b||^2, (k, grid)
+        eta = beta2 @ (g / (g + lam[:, None]) ** 2).T  # x^T P x
+        t = np.log(lam)
+        X, Y = 0.5 * np.log(np.maximum(rho, 1e-300)), 0.5 * np.log(np.maximum(eta, 1e-300))
+        dX, dY = np.gradient(X, t, axis=1), np.gradient(Y, t, axis=1)
+        ddX, ddY = np.gradient(dX, t, axis=1), np.gradient(dY, t, axis=1)
+        kappa = (dX * ddY - ddX * dY) / np.maximum(dX ** 2 + dY ** 2, 1e-300) ** 1.5
+        return lam[np.argmax(kappa, axis=1)], kappa
+
+    def lambdas(self, y: np.ndarray, lam="lcurve") -> np.ndarray:
+        """Lambda of every frame: by a rule (:data:`LAMBDA_RULES`) or a given positive number."""
         k = np.atleast_2d(y).shape[0]
         if isinstance(lam, str):
-            v.choice("lam", lam, ("gcv",))
-            return self.gcv(y)[0]
-        return np.full(k, v.real("lam", lam, lo=0, lo_open=True, expected="'gcv' or a positive number"))
+            rule = v.choice("lam", lam, LAMBDA_RULES)
+            chosen = (self.lcurve if rule == "lcurve" else self.gcv)(y)[0]
+            ends = np.isclose(chosen, GCV_GRID[0] * self.eigenvalues.max()) | np.isclose(
+                chosen, GCV_GRID[-1] * self.eigenvalues.max())
+            if ends.any():
+                log.warning("%s chose lambda at the end of its range (%.3g x the largest eigenvalue) for %d of %d "
+                            "frame(s): the image is likely under- or over-regularized; give --lambda a number or "
+                            "use another rule", rule, chosen[ends][0] / self.eigenvalues.max(), int(ends.sum()), k)
+            return chosen
+        return np.full(k, v.real("lam", lam, lo=0, lo_open=True,
+                                 expected="'lcurve', 'gcv' or a positive number"))
 
-    def solve(self, y: np.ndarray, lam="gcv") -> tuple[np.ndarray, np.ndarray]:
+    def solve(self, y: np.ndarray, lam="lcurve") -> tuple[np.ndarray, np.ndarray]:
         """Normalized changes ``(k, N)`` and the lambda of every frame ``(k,)``."""
         beta = self._beta(y)
         lam_k = self.lambdas(y, lam)
         coef = beta / (self.eigenvalues[None, :] + lam_k[:, None])
         return coef @ self._M.T, lam_k
 
-    def reconstruct(self, y: np.ndarray, lam="gcv") -> np.ndarray:
+    def reconstruct(self, y: np.ndarray, lam="lcurve") -> np.ndarray:
         """Images of the normalized change, shape ``(k, n, n)``, from relative changes ``(k, n_rows)``."""
         x, _ = self.solve(y, lam)
         return x.reshape(-1, self.n, self.n)
@@ -226,7 +266,7 @@ class GaussNewton:
     def _objective(self, r: np.ndarray, s: np.ndarray, lam: float) -> float:
         return float(r @ r) + lam * self.linear.prior.quad(s)
 
-    def reconstruct_one(self, y: np.ndarray, lam="gcv") -> tuple[np.ndarray, float, int, list]:
+    def reconstruct_one(self, y: np.ndarray, lam="lcurve") -> tuple[np.ndarray, float, int, list]:
         m, lin = self.model, self.linear
         y = np.asarray(y, dtype=float)
         lam = float(lin.lambdas(y[None], lam)[0])
@@ -255,9 +295,13 @@ class GaussNewton:
             it += 1
             if phi[-2] - phi[-1] < self.tol * phi[-2]:
                 break
+        held = int(np.sum((s <= LOG_BOUNDS[0] + 1e-9) | (s >= LOG_BOUNDS[1] - 1e-9)))
+        if held:
+            log.warning("Gauss-Newton held %d pixel(s) at the conductivity bounds (%.2g or %.3g sigma0): lambda %.3g "
+                        "is too small for this frame", held, np.exp(LOG_BOUNDS[0]), np.exp(LOG_BOUNDS[1]), lam)
         return np.expm1(s).reshape(m.n_pixels, m.n_pixels), lam, it, phi
 
-    def reconstruct(self, y: np.ndarray, lam="gcv", progress: bool = False) -> GNResult:
+    def reconstruct(self, y: np.ndarray, lam="lcurve", progress: bool = False) -> GNResult:
         """Reconstruct every frame of relative changes ``(k, n_rows)``."""
         from tqdm import tqdm
 

@@ -7,7 +7,7 @@ Jacobians per frame) and ``dnn`` (the trained network). Metrics are CC, PSNR, SS
 :func:`latticeopt.learn.evaluate_images` on the normalized change ``(sigma - sigma0) / sigma0``, with one data
 range for the whole test set (``data_range="dataset"``); no method's images are rescaled before scoring.
 
-Regularization of the classical methods: ``"gcv"`` (per frame, the documented rule of
+Regularization of the classical methods: ``"lcurve"`` (the default) or ``"gcv"`` (per frame, the rules of
 :mod:`.classical`), a number (relative to the largest eigenvalue of ``A P^-1 A^T``), or ``"validation"``:
 the lambda of :data:`~latticeopt.recon.classical.GCV_GRID` with the lowest mean squared image error on the
 validation part, with the test frames' noise level (a supervised choice, like the network's training, never
@@ -32,7 +32,7 @@ from .dataset import ReconDataset, part_arrays
 log = logging.getLogger(__name__)
 
 METHODS = ("background", "tikhonov", "gn", "dnn")
-LAMBDA_RULES = ("gcv", "validation")
+LAMBDA_RULES = ("lcurve", "gcv", "validation")
 
 
 def tune_lambda(lin: LinearReconstructor, y_val: np.ndarray, images_val: np.ndarray,
@@ -51,16 +51,17 @@ def tune_lambda(lin: LinearReconstructor, y_val: np.ndarray, images_val: np.ndar
 
 def resolve_lambda(rule, lin: LinearReconstructor, data: ReconDataset | None, model: SensorModel,
                    snr_db: float | None = None):
-    """Turn a rule (``"gcv"``, ``"validation"`` or a relative number) into what the reconstructors take.
+    """Turn a rule (``"lcurve"``, ``"gcv"``, ``"validation"`` or a relative number) into what the reconstructors
+    take.
 
     ``"validation"`` tunes on the validation part with noise of ``snr_db`` (the test frames' noise level).
     """
     if isinstance(rule, str):
         v.choice("lam", rule, LAMBDA_RULES)
-        if rule == "gcv":
-            return "gcv"
+        if rule in ("lcurve", "gcv"):
+            return rule
         if data is None:
-            raise ParameterError("lam", "'gcv' or a number (no validation data given)", rule)
+            raise ParameterError("lam", "'lcurve', 'gcv' or a number (no validation data given)", rule)
         y, img, _ = part_arrays(data, model, "val", snr_db=snr_db, seed=3)
         return tune_lambda(lin, y, img)
     return v.real("lam", rule, lo=0, lo_open=True) * lin.eigenvalues.max()
@@ -78,7 +79,7 @@ def parse_methods(methods, priors) -> list[str]:
 
 
 def evaluate_methods(model: SensorModel, data: ReconDataset, methods=("tikhonov", "dnn"), priors=("noser",),
-                     lam="gcv", net_path: str | Path | None = None, gn_per_count: int = 10,
+                     lam="lcurve", net_path: str | Path | None = None, gn_per_count: int = 10,
                      test_snr_db: float | None = None, simulator: SensorSimulator | None = None,
                      progress: bool = False) -> dict:
     """Reconstruct the test part with every method and score it per touch count.
