@@ -152,6 +152,8 @@ class LatticeDesign:
         elif self.custom_polygons_mm:
             raise ParameterError("custom_polygons_mm", "no polygons unless pattern = 'custom'",
                                  f"{len(self.custom_polygons_mm)} polygon(s) with pattern = {self.pattern!r}")
+        else:
+            set_(self, "custom_polygons_mm", ())  # one canonical empty value: [] from a file equals ()
         _layout.check_electrodes(self.footprint(), self.electrodes(), self.size_mm,
                                  name="custom_polygons_mm" if self.pattern == "custom" else "layout")
 
