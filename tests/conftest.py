@@ -17,3 +17,19 @@ def stack_mesh():
 @pytest.fixture(scope="session")
 def stack_solver(stack_mesh):
     return IndentationSolver(stack_mesh, IndentSettings())
+
+
+@pytest.fixture
+def saved_figures(monkeypatch):
+    """Every matplotlib figure saved during the test, in order (to check layout and colour bars)."""
+    from matplotlib.figure import Figure
+
+    figures = []
+    original = Figure.savefig
+
+    def record(self, *args, **kwargs):
+        figures.append(self)
+        return original(self, *args, **kwargs)
+
+    monkeypatch.setattr(Figure, "savefig", record)
+    return figures

@@ -16,20 +16,6 @@ def _reject_constant(name):
     raise ValueError(f"not JSON: {name}")
 
 
-@pytest.fixture
-def saved_figures(monkeypatch):
-    """Every matplotlib figure saved during the test, in order (to check layout and colour bars)."""
-    from matplotlib.figure import Figure
-
-    figures = []
-    original = Figure.savefig
-
-    def record(self, *args, **kwargs):
-        figures.append(self)
-        return original(self, *args, **kwargs)
-
-    monkeypatch.setattr(Figure, "savefig", record)
-    return figures
 
 
 def _colorbars(fig):

@@ -4,25 +4,9 @@ phantom count."""
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 from latticeopt.report import plot_heatmap, plot_lines
 from latticeopt.study import study_from_dict
-
-
-@pytest.fixture
-def saved_figures(monkeypatch):
-    from matplotlib.figure import Figure
-
-    figures = []
-    original = Figure.savefig
-
-    def record(self, *args, **kwargs):
-        figures.append(self)
-        return original(self, *args, **kwargs)
-
-    monkeypatch.setattr(Figure, "savefig", record)
-    return figures
 
 
 def _study(tmp_path, mesh=None):

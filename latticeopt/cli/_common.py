@@ -7,8 +7,6 @@ import json
 import sys
 from pathlib import Path
 
-import numpy as np
-
 from ..design import PATTERNS, RIMS, LatticeDesign, design_from_table
 from ..errors import ParameterError
 
@@ -138,25 +136,11 @@ def parse_output(path: str | None, suffixes: tuple[str, ...], name: str = "-o") 
     return p
 
 
-def _jsonable(obj):
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _jsonable(obj.tolist())
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, Path):
-        return str(obj)
-    return obj
-
-
 def emit_json(obj: dict) -> None:
     """Print one JSON object on stdout (strict JSON: a NaN or infinite value is printed as ``null``)."""
     from .._jsonout import dumps
 
-    sys.stdout.write(dumps(_jsonable(obj)) + "\n")
+    sys.stdout.write(dumps(obj) + "\n")
 
 
 def study_overrides(args: argparse.Namespace) -> list[str]:

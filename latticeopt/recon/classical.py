@@ -155,6 +155,10 @@ class LinearReconstructor:
             raise ParameterError("y", f"relative changes of shape (k, {len(self.w)})", y.shape)
         return (y * self.w) @ self._Q
 
+    def _spectrum(self, y: np.ndarray, grid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Squared data coefficients on the eigenvectors ``(k, m)`` and the absolute lambdas of ``grid``."""
+        return self._beta(y) ** 2, np.asarray(grid) * self.eigenvalues.max()
+
     def gcv(self, y: np.ndarray, grid: np.ndarray = GCV_GRID) -> tuple[np.ndarray, np.ndarray]:
         """GCV choice of lambda per frame.
 
@@ -165,8 +169,7 @@ class LinearReconstructor:
         curve : ndarray, shape (k, len(grid))
             GCV function values.
         """
-        beta2 = self._beta(y) ** 2
-        lam = np.asarray(grid) * self.eigenvalues.max()
+        beta2, lam = self._spectrum(y, grid)
         f = lam[:, None] / (self.eigenvalues[None, :] + lam[:, None])  # (grid, m): 1 - filter factors
         num = beta2 @ (f ** 2).T  # (k, grid)
         den = f.sum(axis=1) ** 2
@@ -183,8 +186,7 @@ class LinearReconstructor:
         curvature : ndarray, shape (k, len(grid))
             Signed curvature of ``(log residual norm, log prior seminorm)`` against ``log lambda``.
         """
-        beta2 = self._beta(y) ** 2
-        lam = np.asarray(grid) * self.eigenvalues.max()
+        beta2, lam = self._spectrum(y, grid)
         g = self.eigenvalues[None, :]
         rho = beta2 @ ((lam[:, None] / (g + lam[:, None])) ** 2).T  # ||A x - b||^2, (k, grid)
         eta = beta2 @ (g / (g + lam[:, None]) ** 2).T  # x^T P x
