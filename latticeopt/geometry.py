@@ -118,3 +118,31 @@ def merged_surface(solids: RegionSolids, tol_mm: float = 1e-9) -> tuple[np.ndarr
     faces = faces[np.sort(first)]
     faces = faces[(faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])]
     return new_verts, faces
+
+
+def write_stl(solids: RegionSolids, folder) -> dict:
+    """Write every region solid as a binary STL (mm) for fabrication: ``<folder>/<region>.stl``.
+
+    The hydrogel solid is the channel network to cast; ``islands`` plus ``substrate`` is the silicone mould it is
+    cast into, ``sealing`` the lid. Written through trimesh, which checks each surface is watertight first.
+
+    Returns
+    -------
+    dict
+        Region name -> path written.
+    """
+    from pathlib import Path
+
+    import trimesh
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    out = {}
+    for name in solids.names:
+        surface = trimesh.Trimesh(solids.vertices_mm[name], solids.faces[name], process=False)
+        if not surface.is_watertight:
+            raise ValueError(f"region {name}: the solid's surface is not watertight")
+        path = folder / f"{name}.stl"
+        surface.export(path)
+        out[name] = path
+    return out

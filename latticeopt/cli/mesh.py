@@ -23,6 +23,9 @@ def register(sub) -> None:
     add_design_args(p)
     add_mesh_args(p)
     p.add_argument("-o", "--output", default=None, help="write the mesh as VTU (ParaView) to this file")
+    p.add_argument("--stl", default=None, metavar="FOLDER",
+                   help="also write every region solid as <FOLDER>/<region>.stl (mm) for fabrication: the hydrogel "
+                        "channels, the silicone islands and substrate that form their mould, the sealing layer")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of text")
     p.set_defaults(func=run_mesh)
 
@@ -37,6 +40,7 @@ def register(sub) -> None:
 
 def run_mesh(args) -> int:
     out = check_output_path("-o", args.output, suffixes=(".vtu",))
+    stl = check_output_path("--stl", args.stl, kind="dir")
     check_mesh_args(args)
     t0 = time.perf_counter()
     mesh = mesh_from_args(args)
@@ -49,6 +53,10 @@ def run_mesh(args) -> int:
     if out is not None:
         mesh.to_vtu(out)
         summary["output"] = str(out)
+    if stl is not None:
+        from ..geometry import build_solids, write_stl
+
+        summary["stl"] = {k: str(v) for k, v in write_stl(build_solids(design), stl).items()}
     if args.json:
         emit_json(summary)
         return 0
