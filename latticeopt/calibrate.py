@@ -296,7 +296,7 @@ def _select(presses: Sequence[Press], fit_on: Mapping[str, Sequence[str]] | None
                                      key)
             val = getattr(pr.design, key) if hasattr(pr.design, key) else pr.field(key)
             ok &= any(_same(val, v) for v in vals)
-        # A voltage reference row goes with its presses: it is needed wherever they are.
+        # a voltage reference row shares its presses' design keys, so it is selected with them
         chosen.append(ok)
     if not any(chosen) or all(chosen):
         raise ParameterError("--fit-on", "a selection keeping some rows for the fit and some for the check",

@@ -103,12 +103,11 @@ def _toml(value) -> str:
 
 def figures(study: Study, evaluations) -> dict:
     """The figures of one run (module docstring): name -> (value, standard error or NaN)."""
-    from .report import _fmt, best_design, press_ratios, summarize
+    from .report import _by_design, _fmt, best_design, press_ratios, summarize
 
     out = {}
     if study.kind == "press":
-        groups = [evaluations[i * len(study.phantoms):(i + 1) * len(study.phantoms)] for i in range(len(study.designs))]
-        for design, group in zip(study.designs, groups):
+        for design, group in zip(study.designs, _by_design(study, evaluations)):
             last = group[-1]
             out[f"V_rel {_fmt(design, study.grid_fields)}"] = (last.v_rel if last.ok else math.nan, math.nan)
         for r in press_ratios(study, evaluations):

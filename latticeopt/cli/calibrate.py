@@ -8,7 +8,15 @@ import sys
 from pathlib import Path
 
 from ..errors import ParameterError
-from ._common import add_mesh_args, check_mesh_args, check_output_path, emit_json, mesh_settings_from_args
+from ._common import (
+    add_mesh_args,
+    add_physics_arg,
+    check_mesh_args,
+    check_output_path,
+    emit_json,
+    mesh_settings_from_args,
+    physics_from_args,
+)
 
 
 def register(sub) -> None:
@@ -25,8 +33,7 @@ def register(sub) -> None:
                    help="a [physics] key to fit and its bounds, e.g. hydrogel_shear_kPa=1:50 (repeatable)")
     p.add_argument("--fit-on", action="append", default=[], metavar="KEY=V1,V2",
                    help="fit only on rows whose design KEY is one of the values; predict the others (repeatable)")
-    p.add_argument("--physics", action="append", default=[], metavar="KEY=VALUE",
-                   help="fixed [physics] setting for every prediction (repeatable)")
+    add_physics_arg(p)
     p.add_argument("--max-evals", type=int, default=30, help="objective evaluations of the fit (default 30)")
     p.add_argument("--profile-points", type=int, default=7,
                    help="points of each conditional profile (0: none; default 7)")
@@ -47,34 +54,6 @@ def _fit_on(texts) -> dict:
     return out
 
 
-def _physics(texts) -> dict:
-    from ..coupled import PhysicsSettings
-    from ..study import parse_override
-
-    values = {}
-    for text in texts:
-        key, value = parse_override(text)
-        values[key] = value
-    try:
-        PhysicsSettings.from_dict(values)
-    except ParameterError as exc:
-        raise ParameterError(f"--physics {exc.name}", exc.expected, exc.got) from None
-    return values
-
-
-def _writable_folder(path: Path) -> Path:
-    if path.exists() and not path.is_dir():
-        raise ParameterError("--out", "a folder (or a path where one can be made)", f"{path} (a file)")
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-        probe = path / ".write-test"
-        probe.write_text("")
-        probe.unlink()
-    except OSError as exc:
-        raise ParameterError("--out", "a writable folder", f"{path} ({exc.strerror})") from None
-    return path
-
-
 def run_calibrate(args: argparse.Namespace) -> int:
     from ..calibrate import calibrate, coupled_predictor, parse_fit, plot_calibration, read_presses
 
@@ -85,7 +64,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
         raise ParameterError("--max-evals", "an integer >= 1", args.max_evals)
     if args.profile_points < 0 or args.profile_points == 1:
         raise ParameterError("--profile-points", "0 (none) or an integer >= 2", args.profile_points)
-    physics = _physics(args.physics)
+    physics = physics_from_args(args)
     clash = sorted(set(physics) & {q.name for q in params})
     if clash:
         raise ParameterError("--physics", "keys other than the fitted ones", clash[0])
@@ -93,8 +72,8 @@ def run_calibrate(args: argparse.Namespace) -> int:
     presses = read_presses(args.data)
     check_mesh_args(args)
     mesh = mesh_settings_from_args(args)
-    out = _writable_folder(check_output_path("--out", args.out or Path("runs") / f"calibrate-{Path(args.data).stem}",
-                                             kind="dir"))
+    out = check_output_path("--out", args.out or Path("runs") / f"calibrate-{Path(args.data).stem}", kind="dir")
+    out.mkdir(parents=True, exist_ok=True)
     say = None if args.quiet else (lambda msg: print(msg, file=sys.stderr, flush=True))
     predict = coupled_predictor(mesh, physics, cache_dir=False if args.no_cache else args.cache_dir)
     cal = calibrate(presses, params, predict, fit_on=fit_on, max_evals=args.max_evals,
