@@ -50,19 +50,21 @@ def _box(x0: float, y0: float, x1: float, y1: float):
     return shapely.box(x0, y0, x1, y1)
 
 
+def _rect(a: np.ndarray, b: np.ndarray, half_w: float):
+    """The rectangle of half-width ``half_w`` around the segment ``a``-``b`` (flat ends)."""
+    import shapely
+
+    t = (b - a) / np.linalg.norm(b - a)
+    nrm = np.array([-t[1], t[0]]) * half_w
+    return shapely.Polygon([a - nrm, b - nrm, b + nrm, a + nrm])
+
+
 def _strips(normal_deg: float, offsets: np.ndarray, centre: np.ndarray, half_w: float, reach: float) -> list:
     """Rectangles of half-width ``half_w`` around the lines ``n . (x - centre) = offset`` (long enough to
     cross the sensor); ``n`` points at ``normal_deg``."""
-    import shapely
-
     n = np.array([math.cos(math.radians(normal_deg)), math.sin(math.radians(normal_deg))])
     tangent = np.array([-n[1], n[0]])
-    out = []
-    for off in offsets:
-        c = centre + off * n
-        corners = [c + s * reach * tangent + r * half_w * n for s, r in ((-1, -1), (1, -1), (1, 1), (-1, 1))]
-        out.append(shapely.Polygon(corners))
-    return out
+    return [_rect(centre + off * n - reach * tangent, centre + off * n + reach * tangent, half_w) for off in offsets]
 
 
 def _line_offsets(pitch: float, reach: float) -> np.ndarray:
@@ -121,7 +123,6 @@ def _honeycomb(centre: np.ndarray, pitch: float, half_w: float, reach: float) ->
     120-degree vertex cover it exactly (every direction lies within 60 degrees of an arm), so their union is
     the mitred channel network.
     """
-    import shapely
 
     R = pitch / math.sqrt(3.0)  # circumradius of a cell with flat-to-flat distance ``pitch``
     a1, a2 = np.array([0.0, pitch]), np.array([pitch * math.sqrt(3) / 2, pitch / 2])
@@ -133,12 +134,7 @@ def _honeycomb(centre: np.ndarray, pitch: float, half_w: float, reach: float) ->
     verts = cells[:, None, :] + R * np.stack([np.cos(ang), np.sin(ang)], axis=1)[None]
     segs = np.stack([verts, np.roll(verts, -1, axis=1)], axis=2).reshape(-1, 2, 2)
     _, first = np.unique(np.round((segs[:, 0] + segs[:, 1]) / 2, 6), axis=0, return_index=True)
-    out = []
-    for a, b in segs[first]:
-        t = (b - a) / np.linalg.norm(b - a)
-        nrm = np.array([-t[1], t[0]]) * half_w
-        out.append(shapely.Polygon([a - nrm, b - nrm, b + nrm, a + nrm]))
-    return out
+    return [_rect(a, b, half_w) for a, b in segs[first]]
 
 
 def parametric_footprint(pattern: str, size_mm: float, width_mm: float, pitch_mm: float, rim: str,
