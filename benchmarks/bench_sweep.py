@@ -33,8 +33,8 @@ from latticeopt import LatticeDesign  # noqa: E402
 from latticeopt.coupled import CoupledModel  # noqa: E402
 from latticeopt.errors import ConvergenceError, MeshError  # noqa: E402
 from latticeopt.mesh import mesh_design  # noqa: E402
-from latticeopt.phantoms import random_phantom  # noqa: E402
-from latticeopt.study import load_study  # noqa: E402
+from latticeopt.study.config import load_study  # noqa: E402
+from latticeopt.study.phantoms import random_phantom  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 CACHE = ROOT / "meshes"

@@ -1,14 +1,17 @@
-"""Mesh convergence of V_rel for the default design (decides the mesh of studies/paper_fig4.toml).
+"""Mesh convergence of V_rel for one design of any layout family (decides the default meshes).
 
     python benchmarks/convergence_vrel.py [--sizes 4 2.8 2 1.4] [--phantoms 6] [--jobs 2]
     python benchmarks/convergence_vrel.py --levels 2.8:2:2 2:2:2 1.4:3:3 --width 2 --thickness 1
+    python benchmarks/convergence_vrel.py --pattern hexagonal --rim none --width 3 --press --phantoms 4 \
+        --levels 2.8:2:2 2:2:2 2:3:3 1.4:3:3
 
 Each level refines the grid (element size, and cells across a channel / through the layer with it) and
 evaluates the same phantoms (the first ones of paper_fig4's seeded set: 1, 2 and 3 touches in turn). It
 prints mean V_rel per mesh, the relative change between successive meshes (mean over phantoms of the
 per-phantom relative change, and of the mean) and the seconds per phantom, as a Markdown table, and at the
 end the same changes against the last (finest) level. ``--levels SIZE:CHANNEL_CELLS:LAYER_CELLS`` replaces the
-ladder by explicit meshes.
+ladder by explicit meshes. ``--press`` adds the press study's centre press (50, 50), r 8.75 mm, 4 mm deep, as
+the first row, and ``--per-phantom`` prints every phantom's V_rel per level.
 """
 
 from __future__ import annotations
@@ -17,7 +20,6 @@ import argparse
 import os
 import time
 from concurrent.futures import ProcessPoolExecutor
-from pathlib import Path
 
 for _var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
@@ -26,9 +28,8 @@ import numpy as np  # noqa: E402
 
 from latticeopt import LatticeDesign, MeshSettings  # noqa: E402
 from latticeopt.coupled import CoupledModel  # noqa: E402
-from latticeopt.phantoms import random_phantom  # noqa: E402
-
-CACHE = Path(__file__).resolve().parent.parent / "meshes"
+from latticeopt.study.phantoms import Phantom, random_phantom  # noqa: E402
+from latticeopt.touches import Touch  # noqa: E402
 
 
 def settings_for(size_mm: float) -> MeshSettings:
@@ -51,7 +52,7 @@ def _level(text: str) -> MeshSettings:
 
 def _run(args):
     mesh_settings, phantoms, design = args
-    model = CoupledModel(design, mesh_settings, cache_dir=CACHE)
+    model = CoupledModel(design, mesh_settings)
     out = []
     for ph in phantoms:
         t0 = time.perf_counter()
@@ -67,13 +68,19 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--width", type=float, default=4.0)
     ap.add_argument("--thickness", type=float, default=3.0)
+    ap.add_argument("--pattern", default="square", choices=["square", "hexagonal", "triangular", "diagonal"])
+    ap.add_argument("--rim", default="none", choices=["none", "channel"])
+    ap.add_argument("--press", action="store_true", help="add the centre press (50, 50, r 8.75, 4 mm) first")
+    ap.add_argument("--per-phantom", action="store_true", help="print each phantom's V_rel per level")
     ap.add_argument("--levels", type=_level, nargs="+", default=None,
                     help="explicit meshes SIZE:CHANNEL_CELLS:LAYER_CELLS[:0] (replaces --sizes; a trailing :0 "
                          "leaves out the grid lines on electrode edges)")
     a = ap.parse_args()
     levels = a.levels or [settings_for(size) for size in a.sizes]
-    design = LatticeDesign(width_mm=a.width, thickness_mm=a.thickness)
+    design = LatticeDesign(width_mm=a.width, thickness_mm=a.thickness, pattern=a.pattern, rim=a.rim)
     phantoms = [random_phantom(100.0, 1 + i % 3, i // 3, 2025) for i in range(a.phantoms)]
+    if a.press:
+        phantoms.insert(0, Phantom((Touch(50.0, 50.0, 8.75, 4.0),), index=0))
     print(f"load average: {os.getloadavg()[0]:.2f}; {design.describe()}; {a.phantoms} phantoms")
     print("| size mm | channel cells | layer cells | electrode-edge lines | nodes | mean V_rel | change of mean | "
           "per-phantom change | s/phantom |")
@@ -98,6 +105,8 @@ def main() -> None:
         print(f"| {ms.size_mm:g} | {ms.channel_cells} | {ms.layer_cells} | {'yes' if ms.electrode_edges else 'no'} | "
               f"{nodes} | {vals.mean():.5f} | "
               f"{change_mean} | {change_each} | {np.mean(secs):.1f} |", flush=True)
+        if a.per_phantom:
+            print("  per phantom: " + " ".join(f"{v:.5f}" for v in vals), flush=True)
         prev = vals
         results.append((ms, vals))
     ref = results[-1][1]

@@ -96,7 +96,7 @@ def _model(name: str, settings_model: str):
         return mod.electrics_proxy_evaluate if name == "proxy" else mod.direct_coupled_evaluate
     if name == "study":
         name = settings_model
-    from latticeopt.sweep import resolve_model
+    from latticeopt.study.sweep import resolve_model
 
     return resolve_model(name)
 
@@ -119,7 +119,7 @@ def main(argv=None) -> int:
 
     from latticeopt.mesh.grid import grid_coordinates
     from latticeopt.optimize import load_optimization
-    from latticeopt.sweep import evaluate_designs
+    from latticeopt.study.sweep import evaluate_designs
 
     opt = load_optimization(args.study, args.overrides)
     study = opt.study

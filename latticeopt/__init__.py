@@ -45,9 +45,9 @@ _LAZY = {
     "simulate": "latticeopt.coupled",
     "ForwardModel": "latticeopt.electrics.forward",
     "Protocol": "latticeopt.electrics.protocol",
-    "load_study": "latticeopt.study",
-    "study_from_dict": "latticeopt.study",
-    "run_sweep": "latticeopt.sweep",
+    "load_study": "latticeopt.study.config",
+    "study_from_dict": "latticeopt.study.config",
+    "run_sweep": "latticeopt.study.sweep",
     "export_sensor_model": "latticeopt.sensor_model",
     "load_sensor_model": "latticeopt.sensor_model",
 }

@@ -467,7 +467,7 @@ class SensorSimulator:
             for i in tqdm(range(len(s)), desc="forward solves", unit="frame", disable=not progress, leave=False):
                 out[i] = self.forward.with_conductivity(self._elements(s[i:i + 1])[0]).voltages
             return out
-        from .execution import make_backend
+        from .study.execution import make_backend
 
         backend = make_backend("local", min(jobs, -(-len(s) // chunk)), None)
         try:

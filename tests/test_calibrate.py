@@ -9,14 +9,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from latticeopt.calibrate import (
+from latticeopt.cli import main
+from latticeopt.errors import ParameterError
+from latticeopt.study.calibrate import (
     FitParameter,
     calibrate,
     parse_fit,
     read_presses,
 )
-from latticeopt.cli import main
-from latticeopt.errors import ParameterError
 
 DATA = Path(__file__).resolve().parents[1] / "studies" / "data" / "paper_press_measured.csv"
 K = "hydrogel_shear_kPa"

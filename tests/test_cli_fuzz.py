@@ -123,7 +123,6 @@ def _import_everything() -> None:
 
 def _patch_stages(mp: pytest.MonkeyPatch) -> None:
     _import_everything()
-    import latticeopt.calibrate
     import latticeopt.coupled
     import latticeopt.gestures
     import latticeopt.gestures.experiment
@@ -133,15 +132,16 @@ def _patch_stages(mp: pytest.MonkeyPatch) -> None:
     import latticeopt.recon.classical
     import latticeopt.recon.dataset
     import latticeopt.recon.dnn
-    import latticeopt.sensitivity
     import latticeopt.sensor_model
-    import latticeopt.sweep
+    import latticeopt.study.calibrate
+    import latticeopt.study.sensitivity
+    import latticeopt.study.sweep
 
     for module, name in [
         (latticeopt.mesh, "mesh_design"), (latticeopt.mechanics, "indent"), (latticeopt.coupled, "CoupledModel"),
         (latticeopt.sensor_model, "build_sensor_model"), (latticeopt.sensor_model, "SensorSimulator"),
-        (latticeopt.sweep, "run_sweep"), (latticeopt.optimize, "run_optimization"),
-        (latticeopt.sensitivity, "run_sensitivity"), (latticeopt.calibrate, "coupled_predictor"),
+        (latticeopt.study.sweep, "run_sweep"), (latticeopt.optimize, "run_optimization"),
+        (latticeopt.study.sensitivity, "run_sensitivity"), (latticeopt.study.calibrate, "coupled_predictor"),
         (latticeopt.recon.classical, "LinearReconstructor"), (latticeopt.recon.classical, "GaussNewton"),
         (latticeopt.recon.dnn, "DNNReconstructor"), (latticeopt.recon.dataset, "generate_dataset"),
         (latticeopt.gestures, "generate_gestures"), (latticeopt.gestures.experiment, "classify_sequences"),

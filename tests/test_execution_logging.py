@@ -8,7 +8,7 @@ import pytest
 
 pytest.importorskip("distributed")
 
-from latticeopt.execution import make_backend  # noqa: E402
+from latticeopt.study.execution import make_backend  # noqa: E402
 
 
 @pytest.fixture

@@ -27,7 +27,6 @@ from latticeopt.errors import (
     ModelBugError,
     ParameterError,
 )
-from latticeopt.objectives import Objective
 from latticeopt.optimize import (
     ALGORITHMS,
     CONSTRAINED,
@@ -41,7 +40,8 @@ from latticeopt.optimize import (
     optimization_from_dict,
     run_optimization,
 )
-from latticeopt.store import ResultStore
+from latticeopt.study.objectives import Objective
+from latticeopt.study.store import ResultStore
 
 TESTS = Path(__file__).parent
 LOG_ENV = "LATTICEOPT_TEST_OPT_LOG"
@@ -209,7 +209,7 @@ def test_objective_terms_and_standard_errors():
 
 
 def test_shipped_optimize_square_study():
-    from latticeopt.study import load_study
+    from latticeopt.study.config import load_study
 
     opt = load_optimization(TESTS.parent / "studies" / "optimize_square.toml")
     assert opt.config.algorithm in ("LN_BOBYQA", "LN_COBYLA") and opt.config.names == ("width_mm", "thickness_mm")
@@ -278,8 +278,8 @@ def test_interrupted_run_resumes_without_recomputing(tmp_path, monkeypatch):
 
 
 def test_path_over_stored_sweep_map_and_sweep_rows_reused(tmp_path, monkeypatch):
-    from latticeopt.study import load_study
-    from latticeopt.sweep import run_sweep
+    from latticeopt.study.config import load_study
+    from latticeopt.study.sweep import run_sweep
 
     monkeypatch.setenv(LOG_ENV, str(tmp_path / "evals.log"))
     sweep = tmp_path / "sweep.toml"
@@ -431,7 +431,7 @@ def test_a_category_where_everything_fails_does_not_hide_the_others(tmp_path):
 
 def test_optimization_refuses_a_locked_folder(tmp_path):
     path = _write(tmp_path)
-    holder = subprocess.Popen([sys.executable, "-c", "import sys\nfrom latticeopt.store import folder_lock\n"
+    holder = subprocess.Popen([sys.executable, "-c", "import sys\nfrom latticeopt.study.store import folder_lock\n"
                                "with folder_lock(sys.argv[1]):\n    print('locked', flush=True)\n    sys.stdin.read()",
                                str(tmp_path / "out")], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
     try:

@@ -10,7 +10,7 @@ from scipy import stats
 
 from latticeopt.design import LatticeDesign
 from latticeopt.errors import ParameterError
-from latticeopt.phantoms import Phantom, phantom_rng, press_series, random_phantom, random_phantoms
+from latticeopt.study.phantoms import Phantom, phantom_rng, press_series, random_phantom, random_phantoms
 from latticeopt.touches import Touch, validate_touches
 
 L = 100.0

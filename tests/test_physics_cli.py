@@ -62,7 +62,7 @@ def test_indent_takes_physics_keys(capsys):
 
 def test_sweep_maps_physics_onto_set(capsys, tmp_path):
     from latticeopt.cli._common import physics_overrides
-    from latticeopt.study import load_study
+    from latticeopt.study.config import load_study
 
     class Args:
         physics = ["hydrogel_poisson_ratio=0.4999", "indenter=sphere"]

@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 
 from latticeopt.errors import ParameterError
-from latticeopt.sensitivity import load_variants, parse_vary, plot_tornado, run_sensitivity, write_table
-from latticeopt.sweep import run_sweep
+from latticeopt.study.sensitivity import load_variants, parse_vary, plot_tornado, run_sensitivity, write_table
+from latticeopt.study.sweep import run_sweep
 
 STUDY = Path(__file__).resolve().parents[1] / "studies" / "sensitivity_press.toml"
 

@@ -15,7 +15,7 @@ import pytest
 
 from latticeopt.design import LatticeDesign
 from latticeopt.errors import LatticeoptError
-from latticeopt.store import Evaluation, ResultStore
+from latticeopt.study.store import Evaluation, ResultStore
 
 
 def _ev(d="d1", p="p1", s="s1", status="ok", v_rel=0.05, **kw) -> Evaluation:
@@ -99,7 +99,7 @@ def test_readonly_missing_store(tmp_path):
 WRITER = textwrap.dedent("""
     import sys
     import numpy as np
-    from latticeopt.store import Evaluation, ResultStore
+    from latticeopt.study.store import Evaluation, ResultStore
     store = ResultStore(sys.argv[1])
     i = 0
     while True:
@@ -138,7 +138,7 @@ def _try_lock_elsewhere(folder) -> subprocess.CompletedProcess:
     code = textwrap.dedent("""
         import sys
         from latticeopt.errors import FolderLockedError
-        from latticeopt.store import folder_lock
+        from latticeopt.study.store import folder_lock
         try:
             with folder_lock(sys.argv[1]):
                 print("got it")
@@ -149,7 +149,7 @@ def _try_lock_elsewhere(folder) -> subprocess.CompletedProcess:
 
 
 def test_folder_lock_is_exclusive_reentrant_and_released(tmp_path):
-    from latticeopt.store import LOCK_NAME, folder_lock
+    from latticeopt.study.store import LOCK_NAME, folder_lock
 
     with folder_lock(tmp_path) as path:
         with folder_lock(tmp_path):  # the same process may take it again (the optimizer's sweeps do)

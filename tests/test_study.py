@@ -11,7 +11,7 @@ import pytest
 from latticeopt.design import DESIGN_FIELDS, LatticeDesign
 from latticeopt.errors import ParameterError
 from latticeopt.mesh import MeshSettings
-from latticeopt.study import PHYSICS_KEYS, EvalSettings, load_study, parse_override
+from latticeopt.study.config import PHYSICS_KEYS, EvalSettings, load_study, parse_override
 
 STUDIES = Path(__file__).parents[1] / "studies"
 

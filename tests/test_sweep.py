@@ -22,10 +22,10 @@ import numpy as np
 import pytest
 
 from latticeopt.errors import AllFailedError, ConvergenceError, FolderLockedError, LatticeoptError, ModelBugError
-from latticeopt.report import best_design
-from latticeopt.store import ResultStore
-from latticeopt.study import load_study
-from latticeopt.sweep import run_sweep
+from latticeopt.study.config import load_study
+from latticeopt.study.report import best_design
+from latticeopt.study.store import ResultStore
+from latticeopt.study.sweep import run_sweep
 
 TESTS = Path(__file__).parent
 LOG_ENV = "LATTICEOPT_TEST_EVAL_LOG"
@@ -277,7 +277,7 @@ def test_model_failures_and_singular_factorizations_are_phantom_failures():
     from pypardiso.pardiso_wrapper import PyPardisoError
 
     from latticeopt.errors import MeshError, ModelFailure
-    from latticeopt.sweep import is_model_failure
+    from latticeopt.study.sweep import is_model_failure
 
     assert is_model_failure(ConvergenceError("x")) and is_model_failure(MeshError("x"))
     assert is_model_failure(ModelFailure("a custom model's own failure"))
@@ -318,7 +318,7 @@ def test_every_evaluation_failed_is_an_error(tmp_path):
 
 def test_second_run_on_a_locked_folder_refuses(tmp_path):
     study = _study(tmp_path)
-    holder = subprocess.Popen([sys.executable, "-c", "import sys\nfrom latticeopt.store import folder_lock\n"
+    holder = subprocess.Popen([sys.executable, "-c", "import sys\nfrom latticeopt.study.store import folder_lock\n"
                                "with folder_lock(sys.argv[1]):\n    print('locked', flush=True)\n    sys.stdin.read()",
                                str(study.out_dir)], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
     try:
@@ -446,9 +446,9 @@ def test_cli_rejects_bad_study_before_any_work(tmp_path):
 
 def test_model_return_contract():
     from latticeopt.design import LatticeDesign
-    from latticeopt.phantoms import random_phantom
-    from latticeopt.study import EvalSettings
-    from latticeopt.sweep import result_to_evaluation
+    from latticeopt.study.config import EvalSettings
+    from latticeopt.study.phantoms import random_phantom
+    from latticeopt.study.sweep import result_to_evaluation
 
     design, phantom, settings = LatticeDesign(), random_phantom(100.0, 2, 0, seed=0), EvalSettings()
     worker = {"host": "h", "pid": 1, "blas_threads": {}}
@@ -510,7 +510,7 @@ def test_a_bug_in_the_prepare_hook_stops_the_sweep(tmp_path):
 
 
 def test_prepare_hook_runs_once_per_chunk_of_one_design(tmp_path, monkeypatch):
-    from latticeopt.sweep import CHUNK_PHANTOMS
+    from latticeopt.study.sweep import CHUNK_PHANTOMS
 
     monkeypatch.setenv(LOG_ENV, str(tmp_path / "evals.log"))
     study = _study(tmp_path, n1=5, n2=3)  # 8 phantoms per design, 2 designs

@@ -178,7 +178,7 @@ def physics_from_args(args: argparse.Namespace) -> dict:
     """
     import tomllib
 
-    from ..study import PHYSICS_KEYS
+    from ..study.config import PHYSICS_KEYS
 
     out = {}
     for text in getattr(args, "physics", None) or []:
@@ -317,7 +317,7 @@ def check_study_file(path) -> None:
 def check_study_outputs(args: argparse.Namespace, study) -> None:
     """A loaded study's output folder, cache folder and model, named by the flag that set them (or the study
     key), before any run (also for ``--dry-run``)."""
-    from ..sweep import resolve_model
+    from ..study.sweep import resolve_model
 
     check_output_path("--out" if getattr(args, "out", None) is not None else "out", study.out_dir, kind="dir")
     cache = study.settings.cache_dir

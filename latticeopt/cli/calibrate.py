@@ -55,7 +55,7 @@ def _fit_on(texts) -> dict:
 
 
 def run_calibrate(args: argparse.Namespace) -> int:
-    from ..calibrate import calibrate, coupled_predictor, parse_fit, plot_calibration, read_presses
+    from ..study.calibrate import calibrate, coupled_predictor, parse_fit, plot_calibration, read_presses
 
     params = [parse_fit(t) for t in args.fit]
     if len({q.name for q in params}) != len(params):

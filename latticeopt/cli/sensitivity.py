@@ -31,8 +31,8 @@ def register(sub) -> None:
 
 def run_sensitivity_command(args: argparse.Namespace) -> int:
     from ..errors import ParameterError
-    from ..sensitivity import load_variants, parse_vary, plot_tornado, run_sensitivity, write_table
-    from ..sweep import run_sweep
+    from ..study.sensitivity import load_variants, parse_vary, plot_tornado, run_sensitivity, write_table
+    from ..study.sweep import run_sweep
 
     if args.jobs is not None and args.jobs < 1:
         raise ParameterError("--jobs", "an integer >= 1", args.jobs)

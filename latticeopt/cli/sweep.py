@@ -44,9 +44,9 @@ def register(sub) -> None:
 def run_sweep_command(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from ..store import ResultStore
-    from ..study import load_study
-    from ..sweep import run_sweep
+    from ..study.config import load_study
+    from ..study.store import ResultStore
+    from ..study.sweep import run_sweep
 
     check_study_file(args.study)
     study = load_study(args.study, study_overrides(args) + physics_overrides(args))

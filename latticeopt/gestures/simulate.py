@@ -176,7 +176,7 @@ def _simulate_block(model, keys, seed, pool, gcfg, mcfg, simulator=None):
 
 def _run_parallel(blocks, results, bar, workers: int, args) -> None:
     """Blocks in worker processes (each rebuilds the forward model once per block)."""
-    from ..execution import make_backend
+    from ..study.execution import make_backend
 
     model, seed, pool, gcfg, mcfg = args
     backend = make_backend("local", workers, None)

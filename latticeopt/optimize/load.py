@@ -13,8 +13,8 @@ from pathlib import Path
 
 from ..design import LatticeDesign
 from ..errors import ParameterError
-from ..objectives import TERMS, Objective
-from ..study import apply_overrides, study_from_dict
+from ..study.config import apply_overrides, study_from_dict
+from ..study.objectives import TERMS, Objective
 from ..touches import validate_touches
 from .config import CONTINUOUS_FIELDS, Constraints, OptimizeConfig, Variable
 from .problem import Optimization, Problem

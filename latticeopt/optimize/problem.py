@@ -9,8 +9,8 @@ import numpy as np
 
 from ..design import LatticeDesign
 from ..errors import ParameterError
-from ..phantoms import Phantom
-from ..study import Study
+from ..study.config import Study
+from ..study.phantoms import Phantom
 from .config import ROUND_DECIMALS, Constraints, LinearConstraint, OptimizeConfig, Variable
 
 __all__ = ["Optimization", "Problem", "effective_bounds_text"]

@@ -15,8 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..report import write_csv
-from ..store import STORE_NAME, ResultStore, jsonable
+from ..study.report import write_csv
+from ..study.store import STORE_NAME, ResultStore, jsonable
 from .problem import effective_bounds_text
 
 __all__ = ["history_rows", "plot_convergence", "plot_path", "stored_map", "write_optimization_outputs"]
@@ -83,7 +83,7 @@ def plot_convergence(result, path: Path) -> Path:
 def stored_map(out_dir: Path, settings_key: str, phantom_keys, problem) -> dict | None:
     """Mean V_rel over the grid of the sweep stored in ``out_dir``, in the plane of the two variables.
 
-    The sweep is the one whose ``study.json`` (written by :func:`latticeopt.sweep.run_sweep`) is in the folder
+    The sweep is the one whose ``study.json`` (written by :func:`latticeopt.study.sweep.run_sweep`) is in the folder
     and has the same settings key; its designs that agree with the problem's fixed fields give the grid, and
     their stored rows on *these* phantoms the values (a cell stays empty unless every phantom is stored).
     Returns ``None`` when there is no such sweep or the grid is not at least 2 x 2.

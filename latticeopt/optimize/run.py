@@ -14,10 +14,10 @@ import numpy as np
 
 from ..design import LatticeDesign
 from ..errors import AllFailedError, LatticeoptError, ParameterError
-from ..objectives import Objective
-from ..phantoms import Phantom
-from ..store import folder_lock
-from ..study import EvalSettings
+from ..study.config import EvalSettings
+from ..study.objectives import Objective
+from ..study.phantoms import Phantom
+from ..study.store import folder_lock
 from .driver import Assessment, Optimum, Step, minimize
 from .problem import Optimization
 
@@ -37,11 +37,11 @@ def assess_design(design: LatticeDesign, *, phantoms: Sequence[Phantom], probes:
     """Evaluate ``design`` on every phantom (and probe) through the store and score it.
 
     Phantoms already stored under ``settings.key`` are read, the rest computed (``jobs`` in parallel) and
-    stored as they finish (:func:`latticeopt.sweep.evaluate_designs`). A failed phantom makes the score NaN
-    (the design is infeasible, :mod:`latticeopt.objectives`); ``n_failed`` counts them, and ``v_rel_mean`` /
+    stored as they finish (:func:`latticeopt.study.sweep.evaluate_designs`). A failed phantom makes the score NaN
+    (the design is infeasible, :mod:`latticeopt.study.objectives`); ``n_failed`` counts them, and ``v_rel_mean`` /
     ``max_stretch`` describe the successful ones only (for the history, never for ranking).
     """
-    from ..sweep import evaluate_designs
+    from ..study.sweep import evaluate_designs
 
     t0 = time.perf_counter()
     evs, computed = evaluate_designs([design], list(phantoms) + list(probes), settings, out_dir, evaluate,
@@ -96,7 +96,7 @@ class OptimizationResult:
 @contextlib.contextmanager
 def _dask_client(scheduler, jobs: int):
     """A ``distributed.Client``: the given one, one connected to an address, or one on a local cluster of ``jobs``
-    single-threaded worker processes (as :mod:`latticeopt.execution` starts them)."""
+    single-threaded worker processes (as :mod:`latticeopt.study.execution` starts them)."""
     if scheduler is not None and not isinstance(scheduler, str):
         yield scheduler
         return
@@ -128,9 +128,9 @@ def run_optimization(opt: Optimization, evaluate: Callable | None = None, *, job
         From :func:`load_optimization`.
     evaluate
         Top-level ``evaluate(design, phantom, settings) -> dict`` (``None``: the study's ``model``). A given
-        function replaces ``settings.model`` (part of the store key), as in :func:`latticeopt.sweep.run_sweep`.
+        function replaces ``settings.model`` (part of the store key), as in :func:`latticeopt.study.sweep.run_sweep`.
     jobs, backend, scheduler
-        Parallel phantoms of each design (:func:`latticeopt.sweep.evaluate_designs`).
+        Parallel phantoms of each design (:func:`latticeopt.study.sweep.evaluate_designs`).
     out_dir
         Folder of the store and outputs (default: the study's ``out``).
     outputs
@@ -138,7 +138,7 @@ def run_optimization(opt: Optimization, evaluate: Callable | None = None, *, job
     callback
         Called with every :class:`Step`.
     """
-    from ..sweep import resolve_model
+    from ..study.sweep import resolve_model
 
     t0 = time.perf_counter()
     study = opt.study

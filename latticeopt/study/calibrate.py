@@ -30,9 +30,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .design import TABLE_KEYS, LatticeDesign, design_from_table
-from .errors import LatticeoptError, ParameterError
-from .touches import Touch, validate_touches
+from ..design import TABLE_KEYS, LatticeDesign, design_from_table
+from ..errors import LatticeoptError, ParameterError
+from ..touches import Touch, validate_touches
 
 __all__ = ["Calibration", "FitParameter", "Press", "calibrate", "coupled_predictor", "parse_fit", "read_presses"]
 
@@ -57,7 +57,7 @@ class Press:
 
 
 def _numeric_physics_keys() -> tuple[str, ...]:
-    from .coupled import PhysicsSettings
+    from ..coupled import PhysicsSettings
 
     return tuple(f.name for f in dataclasses.fields(PhysicsSettings) if isinstance(f.default, float))
 
@@ -71,7 +71,7 @@ class FitParameter:
     upper: float
 
     def __post_init__(self) -> None:
-        from .coupled import PhysicsSettings
+        from ..coupled import PhysicsSettings
 
         keys = _numeric_physics_keys()
         if self.name not in keys:
@@ -223,7 +223,7 @@ def coupled_predictor(mesh_settings=None, physics: Mapping | None = None, cache_
 
     One :class:`~latticeopt.coupled.CoupledModel` per design and physics; the mesh comes from the cache.
     """
-    from .coupled import CoupledModel, PhysicsSettings
+    from ..coupled import CoupledModel, PhysicsSettings
 
     base = dict(physics or {})
 

@@ -45,7 +45,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import FolderLockedError, LatticeoptError
+from ..errors import FolderLockedError, LatticeoptError
 
 __all__ = ["LOCK_NAME", "STATUSES", "STORE_NAME", "Evaluation", "ResultStore", "folder_lock", "jsonable"]
 
@@ -336,7 +336,7 @@ def folder_lock(folder: str | Path) -> Iterator[Path]:
     """Hold the exclusive lock of an output folder while the block runs (see the module docstring).
 
     Re-entrant within a process: a run that holds the lock may call code that takes it again (the optimizer
-    evaluates each design through :func:`latticeopt.sweep.evaluate_designs`, which locks too).
+    evaluates each design through :func:`latticeopt.study.sweep.evaluate_designs`, which locks too).
 
     Parameters
     ----------

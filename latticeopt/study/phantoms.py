@@ -25,9 +25,9 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from . import _validate as v
-from .errors import ParameterError
-from .touches import Touch
+from .. import _validate as v
+from ..errors import ParameterError
+from ..touches import Touch
 
 __all__ = ["MAX_TOUCHES", "Comparison", "Phantom", "PressSeries", "RandomPhantoms", "phantom_rng", "press_series",
            "random_phantom", "random_phantoms"]

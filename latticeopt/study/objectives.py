@@ -1,6 +1,6 @@
 """What the optimizer maximizes: statistics of V_rel over a design's fixed phantom set.
 
-Every design is evaluated on the *same* phantoms (common random numbers, :mod:`latticeopt.phantoms`), so a
+Every design is evaluated on the *same* phantoms (common random numbers, :mod:`latticeopt.study.phantoms`), so a
 difference between two designs is a difference of designs, not of draws, and the objective is a deterministic
 function of the design (no sampling noise along the optimizer's path). The terms:
 
@@ -39,10 +39,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import _validate as v
-from .errors import ParameterError
+from .. import _validate as v
+from ..errors import ParameterError
+from ..touches import Touch
 from .phantoms import Phantom
-from .touches import Touch
 
 __all__ = ["TERMS", "Objective", "ObjectiveValue"]
 

@@ -30,12 +30,12 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from . import _validate as v
-from .design import DESIGN_FIELDS, TABLE_KEYS, LatticeDesign, design_from_table
-from .errors import ParameterError
-from .mesh import MeshSettings
+from .. import _validate as v
+from ..design import DESIGN_FIELDS, TABLE_KEYS, LatticeDesign, design_from_table
+from ..errors import ParameterError
+from ..mesh import MeshSettings
+from ..touches import validate_touches
 from .phantoms import MAX_TOUCHES, Comparison, Phantom, PressSeries, RandomPhantoms
-from .touches import validate_touches
 
 __all__ = ["DEFAULT_MODEL", "PHYSICS_KEYS", "STUDY_KINDS", "EvalSettings", "Study", "apply_overrides", "load_study",
            "parse_override", "study_from_dict"]
@@ -53,7 +53,7 @@ def _string(name: str, value: object) -> str:
 
 def _physics_settings():
     # imported when first needed, not with this module: the coupled model pulls in the solvers (0.7 s)
-    from .coupled import PhysicsSettings
+    from ..coupled import PhysicsSettings
 
     return PhysicsSettings
 
@@ -158,13 +158,13 @@ class EvalSettings:
         are never reused as current; the package version covers changes of the code itself. No hand-bumped
         revision number is involved.
         """
-        from . import __version__  # read at call time: the installed package's version
+        from .. import __version__  # read at call time: the installed package's version
 
         physics: dict = self.physics
         if self.model == DEFAULT_MODEL:
             # imported here, not at module level: the coupled model pulls in the solvers, and only the default
             # model's settings are known to be PhysicsSettings
-            from .coupled import PhysicsSettings
+            from ..coupled import PhysicsSettings
 
             try:
                 resolved = PhysicsSettings.from_dict(physics)

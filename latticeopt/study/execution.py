@@ -19,7 +19,7 @@ import re
 import signal
 from pathlib import Path
 
-from .errors import LatticeoptError, ParameterError
+from ..errors import LatticeoptError, ParameterError
 
 __all__ = ["BACKENDS", "blas_threads", "make_backend"]
 

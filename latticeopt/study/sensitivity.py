@@ -21,9 +21,9 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from .design import TABLE_KEYS
-from .errors import AllFailedError, ParameterError
-from .study import Study, load_study
+from ..design import TABLE_KEYS
+from ..errors import AllFailedError, ParameterError
+from .config import Study, load_study
 
 __all__ = ["Variation", "load_variants", "parse_vary", "run_sensitivity", "plot_tornado", "write_table"]
 
@@ -38,7 +38,7 @@ class Variation:
 
 def parse_vary(text: str) -> Variation:
     """``"hydrogel_shear_kPa=2,15"`` -> ``Variation("physics.hydrogel_shear_kPa", (2, 15))`` (TOML values)."""
-    from .coupled import PhysicsSettings
+    from ..coupled import PhysicsSettings
 
     key, sep, vals = str(text).partition("=")
     key = key.strip()

@@ -1,7 +1,7 @@
 """Run a study: every (design, phantom) pair not yet in the store, in parallel, written as it finishes.
 
->>> from latticeopt.study import load_study
->>> from latticeopt.sweep import run_sweep
+>>> from latticeopt.study.config import load_study
+>>> from latticeopt.study.sweep import run_sweep
 >>> result = run_sweep(load_study("studies/quick.toml"), jobs=2)  # doctest: +SKIP
 
 The model is a picklable top-level function ``evaluate(design, phantom, settings) -> dict`` (default: the
@@ -18,14 +18,14 @@ the sweep goes on. Any other exception (``ValueError``, ``IndexError``, ``NotImp
 returning no ``v_rel``, a broken worker pool, ...) is a bug, not a property of the design: recording it as a
 failure would bias every comparison, so the sweep stores what has arrived, appends the traceback to
 ``error.log`` in the output folder and raises :class:`~latticeopt.errors.ModelBugError` with a one-line
-message. How failed phantoms enter the tables: :mod:`latticeopt.report`.
+message. How failed phantoms enter the tables: :mod:`latticeopt.study.report`.
 
 Backends. ``"local"``: with ``jobs == 1`` the tasks run in this process; with more, in a
 ``ProcessPoolExecutor`` of fresh (``spawn``) processes that inherit ``OMP/MKL/OPENBLAS_NUM_THREADS=1`` from the
 environment set around the pool, so BLAS/MKL start single-threaded in every worker (each result records the
 thread counts the worker's loaded BLAS/OpenMP libraries report; more than one is logged as a warning).
 ``"dask"``: dask.distributed futures on the cluster at ``scheduler`` (an address or a ``Client``); without one,
-a local cluster of ``jobs`` single-threaded worker processes (:mod:`latticeopt.execution`).
+a local cluster of ``jobs`` single-threaded worker processes (:mod:`latticeopt.study.execution`).
 """
 
 from __future__ import annotations
@@ -48,10 +48,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import AllFailedError, LatticeoptError, ModelBugError, ModelFailure, ParameterError
+from ..errors import AllFailedError, LatticeoptError, ModelBugError, ModelFailure, ParameterError
+from .config import EvalSettings, Study
 from .execution import BACKENDS, blas_threads, make_backend
 from .store import Evaluation, ResultStore, folder_lock, jsonable
-from .study import EvalSettings, Study
 
 __all__ = ["BACKENDS", "ERROR_LOG", "FAILURE_TYPES", "SweepResult", "blas_threads", "evaluate_designs",
            "is_model_failure", "resolve_model", "result_to_evaluation", "run_sweep"]
@@ -283,7 +283,7 @@ def run_sweep(study: Study, evaluate: Callable | None = None, *, jobs: int | Non
     out_dir
         Output folder (default: the study's ``out``); holds ``results.sqlite`` and the reports.
     outputs
-        Write CSV tables and figures at the end (:func:`latticeopt.report.write_outputs`).
+        Write CSV tables and figures at the end (:func:`latticeopt.study.report.write_outputs`).
     """
     t_start = time.perf_counter()
     settings = study.settings

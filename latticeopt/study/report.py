@@ -32,8 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .config import Study
 from .store import Evaluation
-from .study import Study
 
 __all__ = ["best_design", "comparison_set", "plot_heatmap", "plot_lines", "plot_press", "press_curves", "press_ratios",
            "results_rows", "summarize", "write_csv", "write_outputs"]

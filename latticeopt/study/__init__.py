@@ -1,0 +1,18 @@
+"""Orchestration: everything that runs the physics core over many designs and phantoms.
+
+The physics core (:mod:`latticeopt.design`, :mod:`latticeopt.mesh`, :mod:`latticeopt.mechanics`,
+:mod:`latticeopt.electrics`, :mod:`latticeopt.coupled`) imports nothing from here.
+
+- :mod:`.config`: study TOML files, validated into a frozen :class:`~.config.Study`, and the evaluation
+  settings whose hash keys the store;
+- :mod:`.phantoms`: seeded random phantoms and press series;
+- :mod:`.sweep`: runs every design x phantom of a study, resumable, in parallel (:mod:`.execution`);
+- :mod:`.store`: the SQLite results store and the output-folder lock;
+- :mod:`.report`: summaries, CSV files and plots of a finished sweep;
+- :mod:`.objectives`: design scores for the optimizer;
+- :mod:`.calibrate` and :mod:`.sensitivity`: fitting physics parameters to measured presses, and re-running a
+  study under changed inputs.
+
+Submodules are imported on first use (``from latticeopt.study.sweep import run_sweep``), so importing the
+package costs nothing.
+"""
