@@ -8,7 +8,7 @@ import pytest
 from latticeopt import LatticeDesign, MeshSettings
 from latticeopt.coupled import CoupledModel, PhysicsSettings, evaluate_phantom, relative_change
 from latticeopt.errors import ParameterError
-from latticeopt.study.config import PHYSICS_KEYS, EvalSettings
+from latticeopt.study.settings import PHYSICS_KEYS, EvalSettings
 from latticeopt.study.phantoms import Phantom
 from latticeopt.touches import Touch
 

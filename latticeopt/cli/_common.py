@@ -178,7 +178,7 @@ def physics_from_args(args: argparse.Namespace) -> dict:
     """
     import tomllib
 
-    from ..study.config import PHYSICS_KEYS
+    from ..study.settings import PHYSICS_KEYS
 
     out = {}
     for text in getattr(args, "physics", None) or []:

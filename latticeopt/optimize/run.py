@@ -14,9 +14,9 @@ import numpy as np
 
 from ..design import LatticeDesign
 from ..errors import AllFailedError, LatticeoptError, ParameterError
-from ..study.config import EvalSettings
 from ..study.objectives import Objective
 from ..study.phantoms import Phantom
+from ..study.settings import EvalSettings
 from ..study.store import folder_lock
 from .driver import Assessment, Optimum, Step, minimize
 from .problem import Optimization

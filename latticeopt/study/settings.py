@@ -1,0 +1,151 @@
+"""Evaluation settings: everything besides design and phantom that determines a result, and its hash.
+
+:data:`PHYSICS_KEYS` is the ``[physics]`` schema, derived from :class:`latticeopt.coupled.PhysicsSettings`;
+:class:`EvalSettings` bundles mesh settings, the physics table and the model function, and its :attr:`~EvalSettings.key`
+(SHA-256 of every resolved setting and the package version) keys the results store.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+
+from ..errors import ParameterError
+from ..mesh import MeshSettings
+
+__all__ = ["DEFAULT_MODEL", "PHYSICS_KEYS", "EvalSettings"]
+
+#: The evaluation function a study uses unless it names another (``model = "module:function"``).
+DEFAULT_MODEL = "latticeopt.coupled:evaluate_phantom"
+
+
+def _physics_settings():
+    # imported when first needed, not with this module: the coupled model pulls in the solvers (0.7 s)
+    from ..coupled import PhysicsSettings
+
+    return PhysicsSettings
+
+
+def _physics_value(key: str, name: str, value: object) -> object:
+    """``value`` of ``[physics]`` key ``key`` as :class:`~latticeopt.coupled.PhysicsSettings` cleans it; a bad
+    value is reported under ``name`` with PhysicsSettings' own allowed values."""
+    try:
+        return getattr(_physics_settings()(**{key: value}), key)
+    except ParameterError as exc:
+        raise ParameterError(name, exc.expected, value) from None
+
+
+class _PhysicsKeys(Mapping):
+    """``key -> checker(name, value)`` for every field of :class:`latticeopt.coupled.PhysicsSettings`.
+
+    The schema is PhysicsSettings itself (fields, defaults and ranges in its ``__post_init__``): a value is
+    checked by constructing PhysicsSettings with it, so the study file, ``--set physics.KEY`` and
+    ``--physics KEY=VALUE`` accept exactly what the model accepts.
+    """
+
+    def _names(self) -> tuple[str, ...]:
+        return tuple(f.name for f in dataclasses.fields(_physics_settings()))
+
+    def __getitem__(self, key: str) -> Callable[[str, object], object]:
+        if key not in self._names():
+            raise KeyError(key)
+        return lambda name, value: _physics_value(key, name, value)
+
+    def __iter__(self):
+        return iter(self._names())
+
+    def __len__(self) -> int:
+        return len(self._names())
+
+
+#: The keys a study's ``[physics]`` table accepts, each with its checker ``(name, value) -> clean value``:
+#: the fields of :class:`latticeopt.coupled.PhysicsSettings`, validated by it (declare a new model setting
+#: there). The table is passed to the model as a dict (:attr:`EvalSettings.physics`); the model applies its own
+#: defaults for keys a study leaves out.
+PHYSICS_KEYS: Mapping[str, Callable[[str, object], object]] = _PhysicsKeys()
+
+
+# -- settings handed to the model --------------------------------------------------------------------------
+@dataclass(frozen=True)
+class EvalSettings:
+    """Everything besides design and phantom that determines an evaluation's result.
+
+    Parameters
+    ----------
+    mesh
+        How each design is meshed.
+    physics_items
+        The ``[physics]`` table as sorted ``(key, value)`` pairs (read it as the dict :attr:`physics`).
+    model
+        ``"module:function"`` of the evaluation function; part of the key, so results of different
+        models never mix in a store.
+    cache_dir
+        Mesh/reference cache folder for the model (``None``: the library default). Not part of the key:
+        where a cache lives does not change a result.
+    """
+
+    mesh: MeshSettings = field(default_factory=MeshSettings)
+    physics_items: tuple[tuple[str, object], ...] = ()
+    model: str = DEFAULT_MODEL
+    cache_dir: str | None = None
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.mesh, MeshSettings):
+            raise ParameterError("mesh", "a MeshSettings", self.mesh)
+        items = dict(self.physics_items)
+        for k, val in items.items():
+            if k not in PHYSICS_KEYS:
+                raise ParameterError("physics", "keys among " + ", ".join(PHYSICS_KEYS), k)
+            items[k] = PHYSICS_KEYS[k](f"physics.{k}", val)
+        object.__setattr__(self, "physics_items", tuple(sorted(items.items())))
+        module, sep, func = str(self.model).partition(":")
+        if not (sep and module and func):
+            raise ParameterError("model", "'module:function', e.g. " + repr(DEFAULT_MODEL), self.model)
+
+    @property
+    def physics(self) -> dict:
+        """The ``[physics]`` settings as a fresh dict (key -> value)."""
+        return dict(self.physics_items)
+
+    def as_dict(self) -> dict:
+        """The identity-relevant content (everything but :attr:`cache_dir`), every default resolved.
+
+        Returns
+        -------
+        dict
+            ``mesh``: every :class:`MeshSettings` field, defaults included. ``physics``: for the default model,
+            the resolved :class:`latticeopt.coupled.PhysicsSettings` (all fields) and the
+            :class:`latticeopt.mechanics.IndentSettings` it hands the solver (``indent``, materials nested);
+            for any other model, the ``[physics]`` table as given (its defaults are the model's own business).
+            ``model``: the function's name. ``version``: latticeopt's package version.
+
+        Notes
+        -----
+        Keying on resolved values rather than on the table as written means a changed default (a solver
+        tolerance, a mesher option, a material constant) changes the key, so rows computed with the old value
+        are never reused as current; the package version covers changes of the code itself. No hand-bumped
+        revision number is involved.
+        """
+        from .. import __version__  # read at call time: the installed package's version
+
+        physics: dict = self.physics
+        if self.model == DEFAULT_MODEL:
+            # imported here, not at module level: the coupled model pulls in the solvers, and only the default
+            # model's settings are known to be PhysicsSettings
+            from ..coupled import PhysicsSettings
+
+            try:
+                resolved = PhysicsSettings.from_dict(physics)
+            except ParameterError as exc:  # a combination PHYSICS_KEYS's per-key checks cannot see
+                raise ParameterError(f"physics.{exc.name}", exc.expected, exc.got) from None
+            physics = {**resolved.as_dict(), "indent": resolved.indent_settings().as_dict()}
+        return {"mesh": dataclasses.asdict(self.mesh), "physics": physics, "model": self.model,
+                "version": __version__}
+
+    @property
+    def key(self) -> str:
+        """SHA-256 of :meth:`as_dict` as canonical JSON: the store's ``settings_key``."""
+        return hashlib.sha256(json.dumps(self.as_dict(), sort_keys=True).encode()).hexdigest()
