@@ -16,6 +16,8 @@ COARSE = ["--sensor-size", "50", "--size", "5", "--no-cache"]
     ["simulate", "--touch", "25,25,7.5,1", *COARSE],
     ["sweep", "studies/quick.toml", "--dry-run"],
     ["optimize", "studies/optimize_square.toml", "--dry-run"],
+    ["sensitivity", "studies/sensitivity_press.toml", "--vary", "rim=channel"],
+    ["calibrate", "studies/data/paper_press_measured.csv", "--fit", "hydrogel_shear_kPa=1:50"],
 ])
 @pytest.mark.parametrize("item, fragments", [
     ("hydrogel_poisson_ratio=0.5", ["--physics hydrogel_poisson_ratio", "< 0.5", "got 0.5"]),
@@ -73,3 +75,24 @@ def test_sweep_maps_physics_onto_set(capsys, tmp_path):
     assert study.settings.physics == {"hydrogel_poisson_ratio": 0.4999, "indenter": "sphere"}
     assert main(["sweep", "studies/quick.toml", "--dry-run", "--physics", "hydrogel_poisson_ratio=0.4999",
                  "--out", str(tmp_path)]) == 0
+
+
+def test_sensitivity_physics_sets_every_runs_baseline(monkeypatch, capsys):
+    import latticeopt.study.sensitivity as sens
+    from latticeopt.errors import ParameterError
+
+    seen = {}
+    real = sens.load_variants
+
+    def record(path, variations, overrides):
+        seen["runs"] = real(path, variations, overrides)
+        raise ParameterError("stop", "the test to stop before running", "here")
+
+    monkeypatch.setattr(sens, "load_variants", record)
+    code = main(["sensitivity", "studies/sensitivity_press.toml", "--vary", "hydrogel_shear_kPa=2,15",
+                 "--physics", "hydrogel_poisson_ratio=0.4999"])
+    assert code == 2 and "stop" in capsys.readouterr().err
+    runs = seen["runs"]
+    assert len(runs) == 3  # the baseline and one per value
+    assert all(study.settings.physics["hydrogel_poisson_ratio"] == 0.4999 for *_, study in runs)
+    assert [study.settings.physics.get("hydrogel_shear_kPa") for *_, study in runs][1:] == [2, 15]

@@ -197,7 +197,8 @@ def physics_from_args(args: argparse.Namespace) -> dict:
 
 
 def physics_overrides(args: argparse.Namespace) -> list[str]:
-    """``--physics KEY=VALUE`` as the study overrides ``physics.KEY=VALUE`` (sweep and optimize), checked first."""
+    """``--physics KEY=VALUE`` as the study overrides ``physics.KEY=VALUE`` (sweep, optimize, sensitivity),
+    checked first."""
     return [f"physics.{k}={json.dumps(v)}" for k, v in physics_from_args(args).items()]
 
 
