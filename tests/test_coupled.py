@@ -8,8 +8,8 @@ import pytest
 from latticeopt import LatticeDesign, MeshSettings
 from latticeopt.coupled import CoupledModel, PhysicsSettings, evaluate_phantom, relative_change
 from latticeopt.errors import ParameterError
-from latticeopt.study.settings import PHYSICS_KEYS, EvalSettings
 from latticeopt.study.phantoms import Phantom
+from latticeopt.study.settings import PHYSICS_KEYS, EvalSettings
 from latticeopt.touches import Touch
 
 COARSE = MeshSettings(size_mm=5.0, channel_cells=1, layer_cells=1)

@@ -43,3 +43,15 @@ def test_heatmap_title_names_mesh_and_phantoms(tmp_path, saved_figures):
     assert plot_heatmap(study, _summary(study), tmp_path / "heat.png") is not None
     title = saved_figures[0].axes[0].get_title()
     assert "3 phantoms per design" in title and "grid mesh, 5 mm" in title
+
+
+def test_figures_say_whether_the_mesh_is_converged(tmp_path, saved_figures):
+    coarse = _study(tmp_path)  # 4 mm, one cell across a channel: coarser than the default
+    default = _study(tmp_path, mesh={"size_mm": 2.0})
+    finer = _study(tmp_path, mesh={"size_mm": 1.4, "channel_cells": 3, "layer_cells": 3})
+    for study in (coarse, default, finer):
+        plot_heatmap(study, _summary(study), tmp_path / "map.png")
+    titles = [fig.axes[0].get_title() for fig in saved_figures]
+    assert "NOT converged" in titles[0]
+    assert "NOT converged" not in titles[1] and "converged" in titles[1]
+    assert "NOT converged" not in titles[2] and "converged" in titles[2]

@@ -32,6 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..mesh import MeshSettings
 from .config import Study
 from .store import Evaluation
 
@@ -186,8 +187,9 @@ def _x_field(study: Study) -> str:
 
 
 def _mesh_caption(study: Study) -> str:
-    """What meshed the study's designs, e.g. ``grid mesh, 4 mm, >= 1 cell across a channel, >= 2 through the
-    layer``: every figure says which mesh made it (V_rel moves by a few per cent between meshes)."""
+    """What meshed the study's designs and, on a second line, whether that mesh is converged, e.g. ``grid mesh,
+    2 mm, >= 2 cells across a channel, >= 2 through the layer`` / ``converged (at least the default mesh)``:
+    every figure says which mesh made it (V_rel moves by a few per cent between meshes)."""
     m = study.settings.mesh
     meshers = sorted({m.resolved(d).mesher for d in study.designs}) or [m.mesher]
     parts = [f"{'/'.join(meshers)} mesh, {m.size_mm:g} mm"]
@@ -196,7 +198,20 @@ def _mesh_caption(study: Study) -> str:
                      f">= {m.layer_cells} through the layer")
     if "tetwild" in meshers:
         parts.append(f"envelope {m.epsilon_rel:g}")
-    return ", ".join(parts)
+    return ", ".join(parts) + "\n" + _convergence_status(study)
+
+
+def _convergence_status(study: Study) -> str:
+    """``converged`` when every design's mesh is at least as fine as the default mesh, the coarsest whose V_rel
+    lies within 2 % of a finer one (the verification docs); else says it is coarser."""
+    m = study.settings.mesh
+    for d in study.designs:
+        got, ref = m.resolved(d), MeshSettings().resolved(d)
+        if got.mesher == "tetwild":
+            return "convergence not checked for tetwild meshes"
+        if got.size_mm > ref.size_mm or got.channel_cells < ref.channel_cells or got.layer_cells < ref.layer_cells:
+            return "NOT converged (coarser than the default mesh): a quick look"
+    return "converged (at least the default mesh)"
 
 
 def _phantom_caption(study: Study, summary: Sequence[dict]) -> str:
