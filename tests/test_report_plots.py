@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from latticeopt.study.config import study_from_dict
-from latticeopt.study.report import plot_heatmap, plot_lines
+from latticeopt.study.plots import plot_heatmap, plot_lines
 
 
 def _study(tmp_path, mesh=None):

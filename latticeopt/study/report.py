@@ -16,7 +16,8 @@ Outputs (:func:`write_outputs`): ``results.csv`` (one row per design x phantom),
 mean V_rel, standard error and ``n`` over the common phantoms, the design's own successes ``n_ok`` and failures,
 and the mean per touch count), ``vrel_lines.png`` (V_rel against the first of ``width_mm``/the first grid field,
 one line per value of the other grid fields, error bars = SE, the layout of the paper's Fig. 4),
-``vrel_heatmap.png`` (two-field grids), ``excluded.csv`` (when a phantom was excluded) and ``report.txt`` (the
+``vrel_heatmap.png`` (two-field grids; the figures are drawn by :mod:`.plots`), ``excluded.csv`` (when a
+phantom was excluded) and ``report.txt`` (the
 best design with its uncertainty and a paired comparison with the runner-up — paired because all designs see
 the same phantoms). Press studies write ``press.csv``, ``press.png`` and the ratios at the deepest depth instead
 of the summary and grid figures.
@@ -32,12 +33,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..mesh import MeshSettings
 from .config import Study
 from .store import Evaluation
 
-__all__ = ["best_design", "comparison_set", "plot_heatmap", "plot_lines", "plot_press", "press_curves", "press_ratios",
-           "results_rows", "summarize", "write_csv", "write_outputs"]
+__all__ = ["best_design", "comparison_set", "press_curves", "press_ratios", "results_rows", "summarize", "write_csv",
+           "write_outputs"]
 
 
 def _mean_se(values: Sequence[float]) -> tuple[float, float]:
@@ -181,130 +181,6 @@ def _label(design, fields) -> str:
     return ", ".join(parts)
 
 
-def _x_field(study: Study) -> str:
-    varying = [f for f, vals in study.grid if len(vals) > 1] or list(study.grid_fields) or ["width_mm"]
-    return "width_mm" if "width_mm" in varying else varying[0]
-
-
-def _mesh_caption(study: Study) -> str:
-    """What meshed the study's designs and, on a second line, whether that mesh is converged, e.g. ``grid mesh,
-    2 mm, >= 2 cells across a channel, >= 2 through the layer`` / ``converged (at least the default mesh)``:
-    every figure says which mesh made it (V_rel moves by a few per cent between meshes)."""
-    m = study.settings.mesh
-    meshers = sorted({m.resolved(d).mesher for d in study.designs}) or [m.mesher]
-    parts = [f"{'/'.join(meshers)} mesh, {m.size_mm:g} mm"]
-    if set(meshers) & {"grid", "extruded"}:
-        parts.append(f">= {m.channel_cells} cell{'s' if m.channel_cells > 1 else ''} across a channel, "
-                     f">= {m.layer_cells} through the layer")
-    if "tetwild" in meshers:
-        parts.append(f"envelope {m.epsilon_rel:g}")
-    return ", ".join(parts) + "\n" + _convergence_status(study)
-
-
-def _convergence_status(study: Study) -> str:
-    """``converged`` when every design's mesh is at least as fine as the default mesh, the coarsest whose V_rel
-    lies within 2 % of a finer one (the verification docs); else says it is coarser."""
-    m = study.settings.mesh
-    for d in study.designs:
-        got, ref = m.resolved(d), MeshSettings().resolved(d)
-        if got.mesher == "tetwild":
-            return "convergence not checked for tetwild meshes"
-        if got.size_mm > ref.size_mm or got.channel_cells < ref.channel_cells or got.layer_cells < ref.layer_cells:
-            return "NOT converged (coarser than the default mesh): a quick look"
-    return "converged (at least the default mesh)"
-
-
-def _phantom_caption(study: Study, summary: Sequence[dict]) -> str:
-    n = max((s["n"] for s in summary), default=0)
-    total = len(study.phantoms)
-    return f"{n} phantoms per design" + ("" if n == total else f" (the {n} of {total} all designs solved)")
-
-
-def plot_lines(study: Study, summary: Sequence[dict], path: Path) -> Path:
-    """V_rel against one grid field, one line per combination of the others, error bars = SE.
-
-    The uniform layer (``width_mm = 0``) is a different topology, not the end of the channel-width axis: its
-    points are drawn as isolated squares (legend "uniform layer"), never joined to ``w > 0`` by a line.
-    """
-    from matplotlib.figure import Figure
-    from matplotlib.lines import Line2D
-
-    x_field = _x_field(study)
-    others = [f for f in study.grid_fields if f != x_field]
-    fig = Figure(figsize=(6.4, 4.6), layout="constrained")
-    ax = fig.add_subplot()
-    lines: dict[tuple, list] = {}
-    for design, s in zip(study.designs, summary):
-        lines.setdefault(tuple(_value(design, f) for f in others), []).append((_value(design, x_field), s, design))
-
-    def se(p):
-        return 0.0 if math.isnan(p[1]["v_rel_se"]) else p[1]["v_rel_se"]
-
-    any_uniform = False
-    for _, pts in lines.items():
-        pts.sort(key=lambda p: p[0])
-        is_uniform = [x_field == "width_mm" and p[2].width_mm == 0 for p in pts]
-        uniform = [p for p, u in zip(pts, is_uniform) if u]
-        lattice = [p for p, u in zip(pts, is_uniform) if not u]
-        label = _label(pts[0][2], others) or "all"
-        color = None
-        if lattice:
-            bars = ax.errorbar([p[0] for p in lattice], [p[1]["v_rel_mean"] for p in lattice],
-                               yerr=[se(p) for p in lattice], marker="o", capsize=3, label=label)
-            color = bars.lines[0].get_color()
-        if uniform:
-            any_uniform = True
-            ax.errorbar([p[0] for p in uniform], [p[1]["v_rel_mean"] for p in uniform],
-                        yerr=[se(p) for p in uniform], marker="s", markersize=7, linestyle="none", capsize=3,
-                        color=color, label=None if lattice else label)
-    ax.set_xlabel(x_field.replace("_mm", " (mm)") + ("; 0 = uniform layer" if any_uniform else ""))
-    ax.set_ylabel("mean $V_{rel}$ (± SE)")
-    ax.set_title(f"{study.name}: {_phantom_caption(study, summary)}\n{_mesh_caption(study)}", fontsize=10)
-    ax.grid(alpha=0.3)
-    handles, labels = ax.get_legend_handles_labels()
-    if any_uniform:
-        handles.append(Line2D([], [], marker="s", linestyle="none", color="0.4", markersize=7))
-        labels.append("uniform layer (w = 0, no lattice)")
-    if len(lines) > 1 or any_uniform:
-        ax.legend(handles, labels, fontsize="small")
-    fig.savefig(path, dpi=130)
-    return path
-
-
-def plot_heatmap(study: Study, summary: Sequence[dict], path: Path) -> Path | None:
-    """Mean V_rel over a two-field grid as an annotated heat map; ``None`` for other grids."""
-    varying = [(f, vals) for f, vals in study.grid if len(vals) > 1]
-    if len(varying) != 2:
-        return None
-    from matplotlib.figure import Figure
-
-    x_field = _x_field(study)
-    y_field, = [f for f, _ in varying if f != x_field]
-    xs = sorted({_value(d, x_field) for d in study.designs})
-    ys = sorted({_value(d, y_field) for d in study.designs})
-    grid = np.full((len(ys), len(xs)), np.nan)
-    for design, s in zip(study.designs, summary):
-        grid[ys.index(_value(design, y_field)), xs.index(_value(design, x_field))] = s["v_rel_mean"]
-    fig = Figure(figsize=(6.4, 4.6), layout="constrained")
-    ax = fig.add_subplot()
-    im = ax.imshow(grid, origin="lower", cmap="viridis", aspect="auto")
-    ax.set_xticks(range(len(xs)), [f"{x:g}" if isinstance(x, float) else str(x) for x in xs])
-    ax.set_yticks(range(len(ys)), [f"{y:g}" if isinstance(y, float) else str(y) for y in ys])
-    ax.set_xlabel(x_field.replace("_mm", " (mm)"))
-    ax.set_ylabel(y_field.replace("_mm", " (mm)"))
-    finite = grid[np.isfinite(grid)]
-    mid = (finite.min() + finite.max()) / 2 if finite.size else 0.0
-    for (r, c), val in np.ndenumerate(grid):
-        if np.isfinite(val):
-            ax.text(c, r, f"{val:.4f}", ha="center", va="center", fontsize=7,
-                    color="black" if val > mid else "white")
-    fig.colorbar(im, ax=ax, label="mean $V_{rel}$")
-    ax.set_title(f"{study.name}: mean V_rel, {_phantom_caption(study, summary)}\n{_mesh_caption(study)}",
-                 fontsize=10)
-    fig.savefig(path, dpi=130)
-    return path
-
-
 # -- press studies -----------------------------------------------------------------------------------------
 def press_curves(study: Study, evaluations: Sequence[Evaluation]) -> list[dict]:
     """Rows ``(grid fields, depth_mm, v_rel, force_N, status)`` per design and depth."""
@@ -333,27 +209,6 @@ def press_ratios(study: Study, evaluations: Sequence[Evaluation]) -> list[dict]:
         out.append({"label": c.label, "depth_mm": study.phantoms[-1].touches[0].depth_mm, "numerator": vals[0],
                     "denominator": vals[1], "ratio": ratio, "reference": c.reference})
     return out
-
-
-def plot_press(study: Study, evaluations: Sequence[Evaluation], path: Path) -> Path:
-    """V_rel against indentation depth, one curve per design (the paper's Fig. 8a layout)."""
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(6.0, 4.2), layout="constrained")
-    ax = fig.add_subplot()
-    depths = [p.touches[0].depth_mm for p in study.phantoms]
-    for design, group in zip(study.designs, _by_design(study, evaluations)):
-        ax.plot(depths, [e.v_rel if e.ok else np.nan for e in group], marker="o",
-                label=_label(design, study.grid_fields) or design.describe())
-    t = study.phantoms[0].touches[0]
-    ax.set_xlabel("indentation depth (mm)")
-    ax.set_ylabel("$V_{rel}$")
-    ax.set_title(f"{study.name}: r = {t.radius_mm:g} mm at ({t.x_mm:g}, {t.y_mm:g}) mm, {len(depths)} depths\n"
-                 f"{_mesh_caption(study)}", fontsize=10)
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize="small")
-    fig.savefig(path, dpi=130)
-    return path
 
 
 # -- everything at once --------------------------------------------------------------------------------------
@@ -407,6 +262,8 @@ def write_outputs(study: Study, evaluations: Sequence[Evaluation], out: Path) ->
     lines : list of str
         The text report (also in ``report.txt``), for the CLI to print.
     """
+    from . import plots  # matplotlib only when figures are drawn
+
     out = Path(out)
     files = {"results": write_csv(out / "results.csv", results_rows(study, evaluations))}
     failed = sum(not e.ok for e in evaluations)
@@ -419,7 +276,7 @@ def write_outputs(study: Study, evaluations: Sequence[Evaluation], out: Path) ->
         (out / "excluded.csv").unlink()
     if study.kind == "press":
         files["press"] = write_csv(out / "press.csv", press_curves(study, evaluations))
-        files["press_plot"] = plot_press(study, evaluations, out / "press.png")
+        files["press_plot"] = plots.plot_press(study, evaluations, out / "press.png")
         for r in press_ratios(study, evaluations):
             ref = f"   (paper: {r['reference']:g})" if r["reference"] is not None else ""
             lines.append(f"V_rel ratio at {r['depth_mm']:g} mm, {r['label']}: {r['numerator']:.5g} / "
@@ -427,8 +284,8 @@ def write_outputs(study: Study, evaluations: Sequence[Evaluation], out: Path) ->
     else:
         summary = summarize(study, evaluations)
         files["summary"] = write_csv(out / "summary.csv", summary)
-        files["lines_plot"] = plot_lines(study, summary, out / "vrel_lines.png")
-        heat = plot_heatmap(study, summary, out / "vrel_heatmap.png")
+        files["lines_plot"] = plots.plot_lines(study, summary, out / "vrel_lines.png")
+        heat = plots.plot_heatmap(study, summary, out / "vrel_heatmap.png")
         if heat is not None:
             files["heatmap"] = heat
         best = best_design(study, evaluations)
