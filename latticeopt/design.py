@@ -86,7 +86,7 @@ class LatticeDesign:
         every side, increasing; None: evenly spaced. Their number must be ``n_electrodes / 4``.
     custom_polygons_mm
         ``pattern = "custom"`` only: hydrogel polygons as ``((shell, *holes), ...)`` rings of ``(x, y)``
-        points (mm), e.g. from :func:`latticeopt.layout.read_geojson`.
+        points (mm), e.g. from :func:`latticeopt.layout.read_layout` (GeoJSON or DXF).
     """
 
     width_mm: float = 4.0
@@ -146,7 +146,7 @@ class LatticeDesign:
         if self.pattern == "custom":
             if not self.custom_polygons_mm:
                 raise ParameterError("custom_polygons_mm", "hydrogel polygons for pattern = 'custom' "
-                                     "(--layout FILE.geojson)", self.custom_polygons_mm)
+                                     "(--layout FILE.geojson or FILE.dxf)", self.custom_polygons_mm)
             gel = _layout.validate_polygons(self.custom_polygons_mm, self.size_mm)
             set_(self, "custom_polygons_mm", _layout.polygons_from_geometry(gel))
         elif self.custom_polygons_mm:
@@ -378,7 +378,7 @@ def design_from_table(table: dict, base_dir: str | None = None) -> LatticeDesign
             path = Path(base_dir) / path
         if values.get("pattern", "custom") != "custom":
             raise ParameterError("pattern", "custom (or nothing) with a layout file", values["pattern"])
-        values.update(pattern="custom", custom_polygons_mm=_layout.read_geojson(path, name="layout"))
+        values.update(pattern="custom", custom_polygons_mm=_layout.read_layout(path, name="layout"))
     fraction = values.pop("hydrogel_fraction", None)
     if fraction is None:
         return LatticeDesign(**values)

@@ -275,6 +275,19 @@ def validate_polygons(polygons, size_mm: float, name: str = "custom_polygons_mm"
     return _clean(shapely.union_all(parts))
 
 
+def read_layout(path: str | Path, name: str = "--layout") -> tuple:
+    """Hydrogel polygons (mm) from a layout file: GeoJSON (:func:`read_geojson`) or DXF
+    (:func:`latticeopt.layout_dxf.read_dxf`), chosen by the suffix."""
+    suffix = Path(path).suffix.lower()
+    if suffix == ".dxf":
+        from .layout_dxf import read_dxf
+
+        return read_dxf(path, name)
+    if suffix not in (".geojson", ".json"):
+        raise ParameterError(name, "a GeoJSON (.geojson, .json) or DXF (.dxf) layout file", str(path))
+    return read_geojson(path, name)
+
+
 def read_geojson(path: str | Path, name: str = "--layout") -> tuple:
     """Hydrogel polygons (mm) from a GeoJSON file: a FeatureCollection, Feature, Polygon or MultiPolygon.
 

@@ -48,7 +48,8 @@ def add_design_args(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--no-leads", dest="electrode_leads", action="store_false", default=None,
                    help="do not join electrodes that no channel reaches by straight leads (reject such layouts)")
     g.add_argument("--layout", type=Path, default=None, metavar="FILE",
-                   help="custom layout: hydrogel polygons (mm) from a GeoJSON file (sets --pattern custom)")
+                   help="custom layout: hydrogel polygons (mm) from a GeoJSON or DXF file (closed curves; sets "
+                        "--pattern custom)")
     g.add_argument("--hydrogel-fraction", type=float, default=None, metavar="F",
                    help="solve the channel width so that this fraction of the layer is hydrogel (instead of --width)")
 
