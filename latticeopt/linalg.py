@@ -1,6 +1,6 @@
 """Sparse direct solves: MKL PARDISO through pypardiso when it is installed, SuperLU otherwise.
 
-PARDISO measured 10-50x faster than SuperLU on this project's 3D systems (``../shared/NOTES.md``). The
+PARDISO measured 10-50x faster than SuperLU on this project's 3D systems (mechanics and electrics meshes). The
 symbolic analysis (ordering, elimination tree) depends only on the sparsity pattern, so
 :meth:`SymmetricSolver.refactor` re-uses it when only the values change (Newton steps, new conductivities).
 The fallback is explicit: ``backend="scipy"`` or no pypardiso installed; :attr:`SymmetricSolver.backend`

@@ -1,4 +1,4 @@
-"""LatticeDesign: the defaults of DESIGN.md section 3, validation messages, derived geometry, electrodes."""
+"""LatticeDesign: the paper's sensor as default, validation messages, derived geometry, electrodes."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ FLOAT_FIELDS = ("width_mm", "thickness_mm", "pitch_mm", "size_mm", "total_thickn
                 "electrode_width_mm")
 
 
-def test_defaults_are_design_md_section_3():
+def test_defaults_are_the_papers_sensor():
     d = LatticeDesign()
     # Sensor 100 x 100 x 9 mm, sealing 2 mm, square lattice of pitch 12.5 mm, 16 electrodes 4 mm wide;
     # w = 4, t = 3 is the paper's simulated optimum.
@@ -201,7 +201,7 @@ def test_any_thickness_leaving_a_negative_substrate_is_rejected(t):
 # -- derived geometry ---------------------------------------------------------------------------------------
 
 def test_paper_optimum_hydrogel_volume():
-    # w = 4, t = 3, p = 12.5: 3 * 100^2 * (1 - (1 - 4/12.5)^2) = 16128 mm^3 (the issue's acceptance value).
+    # w = 4, t = 3, p = 12.5: 3 * 100^2 * (1 - (1 - 4/12.5)^2) = 16128 mm^3 (the closed form).
     assert LatticeDesign(rim="channel").region_volumes_mm3()["hydrogel"] == pytest.approx(16128.0, rel=1e-12)
     # Without the rim channel the 7 inner lines per axis remain: f = 7 w / L per axis, 1 - (1 - f)^2 in all.
     assert LatticeDesign().region_volumes_mm3()["hydrogel"] == pytest.approx(3e4 * (1 - (1 - 0.28) ** 2), rel=1e-12)

@@ -35,7 +35,8 @@ def grid():
 
 def test_hydrogel_volume_acceptance(tw, grid):
     gel = tw.region_volumes_mm3()["hydrogel"]
-    assert abs(gel / DESIGN.region_volumes_mm3()["hydrogel"] - 1) < 0.005  # the acceptance bound
+    # fTetWild's envelope (1e-3 of the diagonal) keeps the gel volume within 0.5 %
+    assert abs(gel / DESIGN.region_volumes_mm3()["hydrogel"] - 1) < 0.005
     assert abs(gel / grid.region_volumes_mm3()["hydrogel"] - 1) < 0.01
 
 

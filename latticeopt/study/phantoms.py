@@ -1,4 +1,4 @@
-"""Phantoms: the sets of touches a sensor is pressed with (DESIGN.md §3, the paper's §III-B).
+"""Phantoms: the sets of touches a sensor is pressed with (the paper's §III-B).
 
 A random phantom with ``k`` touches draws, for every touch, a radius uniform in ``[r_lo, r_hi]`` mm, a depth
 uniform in ``[d_lo, d_hi]`` mm and a centre uniform with the indenter disc fully on the sensor
