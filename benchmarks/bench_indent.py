@@ -6,8 +6,7 @@ total and peak memory for
 * ``latticeopt`` -- the default solver: P1 + mean-dilatation tangent compiled with numba, single-precision
   PARDISO factorization (Cholesky, symbolic analysis reused), inexact Newton (``method="newton-krylov"``:
   GMRES on each tangent preconditioned by the latest factorization), conforming punch rim;
-* ``(newton)`` and ``(bfgs)`` -- the same with a factorization every iteration (exact Newton) and with BFGS
-  updates between factorizations;
+* ``(newton)`` -- the same with a factorization every iteration (exact Newton);
 * ``baseline`` -- plain scikit-fem: neo-Hookean residual and tangent written with ``skfem.helpers`` inside
   the forms (so ``F``, ``inv(F)``, ``det(F)`` are re-evaluated for every pair of basis functions), 4-point
   quadrature, Dirichlet DOFs condensed, ``scipy.sparse.linalg.spsolve``. One Newton iteration is timed and
@@ -162,11 +161,10 @@ def main() -> None:
           f"1 MKL thread; load average before: {' '.join(load)} (2 cores)")
     ours = run_part("ours", "--size", str(a.size), "--method", "newton-krylov")
     newton = run_part("ours", "--size", str(a.size), "--method", "newton")
-    bfgs = run_part("ours", "--size", str(a.size), "--method", "bfgs")
     print(f"mesh: {ours['nodes']} nodes, {ours['tets']} tets, {ours['dofs']} DOFs")
     print(f"{'solver':<18} {'iters':>5} {'factor':>6} {'gmres':>5} {'steps':>5} {'asm/it s':>8} {'fact/f s':>8} "
           f"{'gmres s':>7} {'total s':>8} {'setup s':>7} {'peak MB':>8} {'force N':>9}")
-    for name, r in (("latticeopt", ours), ("(newton)", newton), ("(bfgs)", bfgs)):
+    for name, r in (("latticeopt", ours), ("(newton)", newton)):
         print(f"{name:<18} {r['iterations']:>5} {r['factorizations']:>6} {r['krylov_its']:>5} {r['load_steps']:>5} "
               f"{r['assembly_per_it']:>8.3f} {r['factor_per_factorization']:>8.3f} {r['krylov_s']:>7.2f} "
               f"{r['total_s']:>8.2f} {r['setup_s']:>7.2f} {r['peak_rss_MB']:>8.0f} {r['force_N']:>9.4f}")
@@ -185,7 +183,7 @@ def main() -> None:
           f"peak {base['peak_rss_MB']:.0f} MB")
     print(f"baseline extrapolated: {per_it:.2f} s/iteration x {newton['iterations']} iterations = {total:.1f} s")
     print(f"speed-up of latticeopt (default) over the baseline: {total / ours['total_s']:.1f}x "
-          f"(exact Newton {total / newton['total_s']:.1f}x, BFGS {total / bfgs['total_s']:.1f}x); target 10x -> "
+          f"(exact Newton {total / newton['total_s']:.1f}x); target 10x -> "
           f"{'met' if total / ours['total_s'] >= 10 else 'NOT met'}")
 
 

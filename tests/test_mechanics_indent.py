@@ -23,15 +23,6 @@ def test_full_newton_converges_quadratically(stack_mesh):
     assert rho[len(pairs)] < 1e-5, r
 
 
-def test_bfgs_and_newton_reach_the_same_state(stack_mesh):
-    touch = [(25, 25, 6.25, 1.5)]
-    a = IndentationSolver(stack_mesh, IndentSettings(method="bfgs")).solve(touch)
-    b = IndentationSolver(stack_mesh, IndentSettings(method="newton")).solve(touch)
-    assert a.forces_N[0] == pytest.approx(b.forces_N[0], rel=1e-5)
-    assert np.abs(a.displacement_mm - b.displacement_mm).max() < 1e-4
-    assert a.solver["n_factorizations"] < b.solver["n_factorizations"]
-
-
 def test_newton_krylov_and_newton_reach_the_same_state(stack_mesh):
     """GMRES through an older factorization only changes the path: same converged state to rtol, fewer
     factorizations than one per iteration."""
@@ -187,6 +178,9 @@ def test_settings_are_validated():
         IndentSettings(max_step_mm=1.0, min_step_mm=2.0)
     with pytest.raises(ParameterError, match="method"):
         IndentSettings(method="magic")
+    # the quasi-Newton mode measured 5x slower than the default is not offered
+    with pytest.raises(ParameterError, match=r"method: expected one of 'newton', 'newton-krylov', got 'bfgs'"):
+        IndentSettings(method="bfgs")
 
 
 def test_scipy_fallback_reaches_the_pardiso_state(stack_mesh, stack_solver):

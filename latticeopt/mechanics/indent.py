@@ -16,8 +16,7 @@ the residual. By default inexact Newton (``method="newton-krylov"``): every iter
 tangent by GMRES preconditioned by the latest PARDISO factorization, to a relative residual ``krylov_rtol``,
 and refactorizes only when GMRES would need more than ``max_krylov`` back-substitutions -- about one
 factorization per load step instead of one per iteration. ``method="newton"`` factorizes every iteration
-(quadratic convergence, tested); ``method="bfgs"`` applies limited-memory BFGS updates on top of the last
-factorization. Timings of all three: ``benchmarks/bench_indent.py`` and the README.
+(quadratic convergence, tested). Timings of both: ``benchmarks/bench_indent.py`` and ``docs/performance.md``.
 A backtracking line search never accepts
 ``det F <= 0`` (nor a patch mean dilatation <= 0) and demands a decrease of energy or residual. A step has
 converged when the residual on the free DOFs is below ``rtol`` times the reaction norm (or ``atol_N``);
@@ -169,13 +168,12 @@ class IndentationSolver:
         lam, history, halvings = 0.0, [], 0
         dlam_max = 1.0 if d_max == 0 else min(1.0, s.max_step_mm / d_max)
         dlam = dlam_max
-        u_prev, lam_prev = None, 0.0
         while lam < 1.0 and d_max > 0:
             lam_new = min(1.0, lam + dlam)
             active = [a.copy() for a in cons.active]
-            u_start, ev_start = self._predict(u, ev, u_prev, lam_prev, lam, lam_new)
             try:
-                u_new, ev_new, norms = self._newton(u_start, ev_start, cons, lam_new, final=lam_new >= 1.0)
+                # the step starts from the last converged state; Newton applies the prescribed increment
+                u_new, ev_new, norms = self._newton(u, ev, cons, lam_new, final=lam_new >= 1.0)
             except _StepFailed as exc:
                 halvings += 1
                 self._factor_isD = None  # that factorization belongs to a rejected state
@@ -191,7 +189,6 @@ class IndentationSolver:
                         f"{lam * d_max:.4g} mm towards {lam_new * d_max:.4g} mm of {d_max:.4g} mm failed after "
                         f"{halvings} step halvings ({exc.reason}; residual {exc.residual:.3g} N{inv})") from None
                 continue
-            u_prev, lam_prev = u, lam
             u, ev, lam = u_new, ev_new, lam_new
             history.append(tuple(norms))
             if len(norms) <= 4:
@@ -225,25 +222,11 @@ class IndentationSolver:
         self._clock["assembly"] += time.perf_counter() - t
         return ev
 
-    def _predict(self, u, ev, u_prev, lam_prev, lam, lam_new):
-        """Start of a load step: secant extrapolation of the last two converged states (the prescribed
-        displacements are linear in ``lam``, so it meets them exactly for the flat punch). The first step, or
-        an extrapolation that would invert a tet, starts from ``u`` and lets Newton apply the increment."""
-        if self.settings.predictor == "secant" and lam > 0:
-            base, base_lam = (u_prev, lam_prev) if u_prev is not None else (np.zeros_like(u), 0.0)
-            trial = u + (lam_new - lam) / (lam - base_lam) * (u - base)
-            ev_trial = self._evaluate(trial)
-            if not ev_trial.inverted:
-                return trial, ev_trial
-        return u, ev
-
     def _newton(self, u: np.ndarray, ev: Evaluation, cons: Constraints, lam: float, final: bool = True):
         """Solve one load step from ``u`` (with its evaluation ``ev``) to load factor ``lam``.
 
-        ``method="newton"``: a fresh tangent factorization every iteration. ``method="bfgs"``: the
-        increment (prescribed jump) iteration factorizes the tangent; the following iterations use
-        limited-memory BFGS updates on top of that factorization (one back-substitution and one residual
-        evaluation each), refactorizing only when progress stalls.
+        ``method="newton-krylov"``: GMRES on the current tangent through the latest factorization, refactorizing
+        when GMRES would take too long; ``method="newton"``: a fresh tangent factorization every iteration.
         """
         s = self.settings
         rtol = s.rtol if final else max(s.rtol, s.step_rtol)
@@ -251,11 +234,9 @@ class IndentationSolver:
         cons.start_step(u, lam)
         norms: list[float] = []
         first = 0  # start of the iterates the divergence test compares
-        memory: list = []
-        since = 0  # BFGS iterations since the last factorization
         refactor_next = False
         krylov = s.method == "newton-krylov"
-        max_it = 3 * s.max_newton if s.method == "bfgs" else s.max_newton
+        max_it = s.max_newton
         for it in range(max_it + 1):
             D, vals = cons.dirichlet(lam)
             isD = np.zeros(n, dtype=bool)
@@ -280,12 +261,11 @@ class IndentationSolver:
                 raise _StepFailed(f"no convergence in {max_it} iterations", r_free, ev.min_J, tuple(norms))
             if len(norms) > first + 3 and r_free > 1e3 * min(norms[first + 1:]):
                 raise _StepFailed("residual diverging", r_free, ev.min_J, tuple(norms))
-            stalled = since >= s.max_bfgs or (since >= 2 and r_free > 0.5 * norms[-3])
             # Newton: the load increment of a new step goes through the factorization of the last iterate of
             # the previous step (its tangent differs from the converged one by O(residual)): one factorization
             # fewer per load step
             reuse = s.method == "newton" and it == 0 and fresh and bool(np.any(jump))
-            exact = (s.method == "newton" and not reuse) or not fresh or stalled or refactor_next
+            exact = (s.method == "newton" and not reuse) or not fresh or refactor_next
             if krylov and not exact:  # GMRES on the current tangent through the last factorization
                 if ev.data is None:
                     ev = self._evaluate(u, tangent=True)
@@ -298,51 +278,23 @@ class IndentationSolver:
                     ev = self._evaluate(u, tangent=True)
                 du = self._linear_solve(ev, isD, D, jump, R)
                 self._factor_isD = isD
-                memory, since, refactor_next = [], 0, False
-            elif not krylov and np.any(jump):
-                # the load increment through the previous factorization (one back-substitution); the tangent
-                # changes most over it, so the next iteration refactorizes
+                refactor_next = False
+            elif not krylov:
+                # exact Newton's load increment through the previous factorization (one back-substitution); the
+                # tangent changes most over it, so the next iteration refactorizes
                 if ev.data is None:
                     ev = self._evaluate(u, tangent=True)
                 du = self._linear_solve(ev, isD, D, jump, R, refactor=False)
-                memory, since, refactor_next = [], 0, True
-            elif not krylov:
-                du = -self._bfgs_direction(np.where(isD, 0.0, R), memory)
-                du[isD] = 0.0
-                since += 1
+                refactor_next = True
             try:
-                ev_new, u_new = self._line_search(u, du, ev, np.any(jump), isD, tangent=s.method != "bfgs")
+                ev_new, u_new = self._line_search(u, du, ev, np.any(jump), isD)
             except _StepFailed:
                 if exact:
                     raise
-                refactor_next = True  # a quasi-Newton direction failed: retry with the exact tangent
+                refactor_next = True  # an increment through a stale factorization failed: retry with a fresh one
                 continue
-            if s.method == "bfgs" and not np.any(jump):
-                sk = (u_new - u).ravel()
-                yk = np.where(isD, 0.0, ev_new.residual_N - R)
-                sy = float(sk @ yk)
-                if sy > 1e-300:
-                    memory.append((sk, yk, 1.0 / sy))
-                    del memory[: -s.max_bfgs]
             u, ev = u_new, ev_new
         raise AssertionError("unreachable")  # pragma: no cover
-
-    def _bfgs_direction(self, g: np.ndarray, memory: list) -> np.ndarray:
-        """Two-loop recursion: ``H g`` with ``H_0`` the factorized tangent's inverse."""
-        q = g.copy()
-        alphas = []
-        for sk, yk, rho in reversed(memory):
-            a = rho * float(sk @ q)
-            alphas.append(a)
-            q -= a * yk
-        t = time.perf_counter()
-        r = self.linear.solve(q).ravel()
-        self._clock["solve"] += time.perf_counter() - t
-        self._n_solves += 1
-        for (sk, yk, rho), a in zip(memory, reversed(alphas)):
-            b = rho * float(yk @ r)
-            r += (a - b) * sk
-        return r
 
     def _linear_solve(self, ev: Evaluation, isD: np.ndarray, D: np.ndarray, jump: np.ndarray,
                       R: np.ndarray, refactor: bool = True) -> np.ndarray:
@@ -427,15 +379,14 @@ class IndentationSolver:
         du[D] = jump
         return du
 
-    def _line_search(self, u: np.ndarray, du: np.ndarray, ev: Evaluation, has_jump: bool, isD: np.ndarray,
-                     tangent: bool):
+    def _line_search(self, u: np.ndarray, du: np.ndarray, ev: Evaluation, has_jump: bool, isD: np.ndarray):
         """Backtrack until no tet inverts and (without a prescribed jump) energy or residual decreases."""
         slope = float(ev.residual_N @ du)
         r_old = float(np.linalg.norm(ev.residual_N[~isD]))
         alpha, min_J = 1.0, np.inf
         for k in range(12):
             trial_u = u + alpha * du.reshape(u.shape)
-            trial = self._evaluate(trial_u, tangent=tangent and k == 0)
+            trial = self._evaluate(trial_u, tangent=k == 0)
             min_J = min(min_J, trial.min_J)
             if not trial.inverted:
                 if has_jump:
@@ -444,7 +395,7 @@ class IndentationSolver:
                     armijo = trial.energy_Nmm <= ev.energy_Nmm + 1e-4 * alpha * min(slope, 0.0)
                     ok = armijo or float(np.linalg.norm(trial.residual_N[~isD])) < r_old
                 if ok:
-                    if tangent and trial.data is None:
+                    if trial.data is None:
                         trial = self._evaluate(trial_u, tangent=True)
                     return trial, trial_u
             alpha *= 0.5
