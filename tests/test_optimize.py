@@ -216,7 +216,8 @@ def test_shipped_optimize_square_study():
     assert (opt.problem.lower, opt.problem.upper, opt.problem.start) == ((0.5, 1.0), (8.0, 5.0), (3.0, 2.0))
     assert opt.study.settings.mesh.cell_counts == "fixed"
     # the quick sweep run with the same cell counts shares its settings key and phantoms: reuse and the path map
-    quick = load_study(TESTS.parent / "studies" / "quick.toml", ["mesh.cell_counts=fixed"])
+    quick = load_study(TESTS.parent / "studies" / "quick.toml",
+                       ["mesh.mesher=\"grid\"", "mesh.size_mm=4", "mesh.channel_cells=1", "mesh.cell_counts=fixed"])
     assert quick.settings.key == opt.study.settings.key and quick.phantoms == opt.study.phantoms
 
 

@@ -1,6 +1,9 @@
 """Where a sweep's tasks run: in this process, in a local process pool, or on a dask.distributed cluster.
 
-Each backend offers ``submit(fn, *args) -> future``, ``wait_any(pending) -> done futures``, ``workers`` and
+:func:`run_tasks` is the one loop every parallel stage uses (sweeps, the sensor model's pixel solves, the
+gesture frames): it keeps a window of tasks in flight, hands back results as they finish, and stops the workers
+when the caller stops early or fails. Each backend under it offers ``submit(fn, *args) -> future``,
+``wait_any(pending) -> done futures``, ``workers``, ``window`` (tasks worth keeping in flight) and
 ``close(abort)``; :func:`make_backend` picks one. Local worker processes are started fresh (``spawn``) while
 ``OMP/MKL/OPENBLAS_NUM_THREADS=1`` is set in the environment they inherit, so their BLAS/MKL libraries load
 single-threaded; :func:`blas_threads` asks the loaded libraries what they actually use, so the runner can check.
@@ -21,9 +24,11 @@ from pathlib import Path
 
 from ..errors import LatticeoptError, ParameterError
 
-__all__ = ["BACKENDS", "blas_threads", "make_backend"]
+__all__ = ["BACKENDS", "blas_threads", "make_backend", "run_tasks"]
 
 BACKENDS = ("local", "dask")
+#: Tasks kept in flight per worker: one running, one queued so the worker never waits for the parent.
+_INFLIGHT_PER_WORKER = 2
 _THREAD_VARS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "VECLIB_MAXIMUM_THREADS",
                 "NUMEXPR_NUM_THREADS")
 _BLAS_GETTERS = ("scipy_openblas_get_num_threads64_", "scipy_openblas_get_num_threads", "openblas_get_num_threads64_",
@@ -88,6 +93,7 @@ class _Inline:
     """jobs == 1: run each task in this process when its result is asked for."""
 
     workers = 1
+    window = 1  # each task runs when submitted: one at a time keeps every result handed back at once
 
     def submit(self, fn, *args):
         fut: cf.Future = cf.Future()
@@ -104,6 +110,7 @@ class _Inline:
 class _Pool:
     def __init__(self, jobs: int):
         self.workers = jobs
+        self.window = _INFLIGHT_PER_WORKER * jobs
         with _single_thread_env():
             self._ex = cf.ProcessPoolExecutor(max_workers=jobs, mp_context=multiprocessing.get_context("spawn"),
                                               initializer=_worker_init)
@@ -161,6 +168,7 @@ class _Dask:
             self.client = scheduler
         n = sum(w.get("nthreads", 1) for w in self.client.scheduler_info()["workers"].values())
         self.workers = max(n, 1)
+        self.window = _INFLIGHT_PER_WORKER * self.workers
 
     def submit(self, fn, *args):
         return self.client.submit(fn, *args, pure=False)
@@ -179,4 +187,51 @@ def make_backend(backend: str, jobs: int, scheduler):
     if backend == "dask":
         return _Dask(jobs, scheduler)
     return _Inline() if jobs == 1 else _Pool(jobs)
+
+
+def run_tasks(fn, tasks, *, backend: str = "local", jobs: int = 1, scheduler=None):
+    """Run ``fn(*args)`` for every ``(tag, args)`` of ``tasks`` and yield the results as they finish.
+
+    Parameters
+    ----------
+    fn
+        A picklable top-level function.
+    tasks
+        Iterable of ``(tag, args)``, consumed lazily: at most the backend's ``window`` tasks are in flight
+        (two per worker; one in this process with ``jobs == 1``), so a long task list is never all queued
+        and a killed run loses only the tasks in flight.
+    backend, jobs, scheduler
+        As for :func:`make_backend`.
+
+    Yields
+    ------
+    list of (tag, result)
+        The tasks that finished since the last yield, all of them, so a caller that must stop (a bug in one
+        result) can still keep the others.
+
+    Notes
+    -----
+    Use it as ``with contextlib.closing(run_tasks(...)) as batches:``: leaving the block early (an exception,
+    Ctrl-C, ``break``) stops the workers at once; a worker's exception is raised from ``fut.result()`` here,
+    after which the workers are stopped as well.
+    """
+    runner = make_backend(backend, jobs, scheduler)
+    queue = iter(tasks)
+    pending: dict = {}
+    aborted = True
+    try:
+        while True:
+            while len(pending) < runner.window:
+                item = next(queue, None)
+                if item is None:
+                    break
+                tag, args = item
+                pending[runner.submit(fn, *args)] = tag
+            if not pending:
+                break
+            done = runner.wait_any(pending)
+            yield [(pending.pop(fut), fut.result()) for fut in done]
+        aborted = False
+    finally:
+        runner.close(abort=aborted)
 

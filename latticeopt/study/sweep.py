@@ -50,7 +50,7 @@ import numpy as np
 
 from ..errors import AllFailedError, LatticeoptError, ModelBugError, ModelFailure, ParameterError
 from .config import EvalSettings, Study
-from .execution import BACKENDS, blas_threads, make_backend
+from .execution import BACKENDS, blas_threads, run_tasks
 from .store import Evaluation, ResultStore, folder_lock, jsonable
 
 __all__ = ["BACKENDS", "ERROR_LOG", "FAILURE_TYPES", "SweepResult", "blas_threads", "evaluate_designs",
@@ -65,7 +65,6 @@ FAILURE_TYPES: tuple[type[BaseException], ...] = (ModelFailure,)
 _PARDISO_SINGULAR = (-4, -7)
 #: File in the output folder that collects the tracebacks of exceptions that stopped a run.
 ERROR_LOG = "error.log"
-_INFLIGHT_PER_WORKER = 2
 #: Phantoms per task for models with a ``prepare`` hook (see :func:`_evaluate_chunk`).
 CHUNK_PHANTOMS = 4
 
@@ -389,35 +388,23 @@ def evaluate_designs(designs, phantoms, settings: EvalSettings, out_dir: str | P
 def _execute(tasks, todo, evaluate, settings, store, backend, jobs, scheduler, progress) -> None:
     from tqdm.auto import tqdm
 
-    runner = make_backend(backend, jobs, scheduler)
-    window = _INFLIGHT_PER_WORKER * runner.workers if runner.workers > 1 or backend == "dask" else 1
     bar = tqdm(total=len(tasks), initial=len(tasks) - len(todo), unit="phantom", disable=not progress,
                dynamic_ncols=True, desc="sweep")
     # Phantoms of one design go to a worker together so the model's per-design set-up is paid once per chunk;
     # small chunks keep the store fresh (a kill loses at most the chunks in flight).
     chunk_size = CHUNK_PHANTOMS if getattr(evaluate, "prepare", None) is not None else 1
-    queue = iter(_chunks(todo, tasks, chunk_size))
-    pending: dict = {}
+    chunks = ((chunk, (evaluate, tasks[chunk[0]][0], [tasks[i][1] for i in chunk], settings))
+              for chunk in _chunks(todo, tasks, chunk_size))
     failed = stored = 0
     warned_threads = False
-    aborted = True
     try:
-        with _sigterm_as_interrupt():
-            while True:
-                while len(pending) < window:
-                    chunk = next(queue, None)
-                    if chunk is None:
-                        break
-                    design = tasks[chunk[0]][0]
-                    pending[runner.submit(_evaluate_chunk, evaluate, design, [tasks[i][1] for i in chunk],
-                                          settings)] = chunk
-                if not pending:
-                    break
+        with _sigterm_as_interrupt(), contextlib.closing(run_tasks(_evaluate_chunk, chunks, backend=backend,
+                                                                   jobs=jobs, scheduler=scheduler)) as batches:
+            for batch in batches:
                 # Everything that arrived is stored before a bug stops the sweep.
                 bug = None
-                for fut in runner.wait_any(pending):
-                    chunk = pending.pop(fut)
-                    for i, payload in zip(chunk, fut.result()):  # a bug payload ends its chunk early
+                for chunk, payloads in batch:
+                    for i, payload in zip(chunk, payloads):  # a bug payload ends its chunk early
                         design, phantom = tasks[i]
                         if payload["status"] == "bug":
                             bug = bug or (design, phantom, payload)
@@ -435,7 +422,7 @@ def _execute(tasks, todo, evaluate, settings, store, backend, jobs, scheduler, p
                             log.warning("phantom %d of %s failed: %s", phantom.index, design.describe(),
                                         (row.error or "").splitlines()[0])
                         many = {k: n for k, n in payload["worker"]["blas_threads"].items() if n > 1}
-                        if many and runner.workers > 1 and not warned_threads:
+                        if many and (jobs > 1 or backend == "dask") and not warned_threads:
                             log.warning("worker %s runs BLAS/OpenMP with more than one thread: %s",
                                         payload["worker"]["pid"], many)
                             warned_threads = True
@@ -443,7 +430,6 @@ def _execute(tasks, todo, evaluate, settings, store, backend, jobs, scheduler, p
                         bar.set_postfix(failed=failed, refresh=False)
                 if bug is not None:
                     raise _model_bug(store.path.parent, settings, stored, *bug)
-        aborted = False
     except KeyboardInterrupt:
         log.warning("interrupted: every finished phantom is stored in %s; run the same command to resume",
                     store.path)
@@ -457,4 +443,3 @@ def _execute(tasks, todo, evaluate, settings, store, backend, jobs, scheduler, p
                             f"{path}") from None
     finally:
         bar.close()
-        runner.close(abort=aborted)
