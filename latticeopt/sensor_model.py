@@ -467,24 +467,18 @@ class SensorSimulator:
             for i in tqdm(range(len(s)), desc="forward solves", unit="frame", disable=not progress, leave=False):
                 out[i] = self.forward.with_conductivity(self._elements(s[i:i + 1])[0]).voltages
             return out
-        from .study.execution import make_backend
+        import contextlib
 
-        backend = make_backend("local", min(jobs, -(-len(s) // chunk)), None)
-        try:
-            futures = {backend.submit(_simulate_chunk, self.model, s[i:i + chunk]): i
-                       for i in range(0, len(s), chunk)}
-            with tqdm(total=len(s), desc="forward solves", unit="frame", disable=not progress, leave=False) as bar:
-                pending = set(futures)
-                while pending:
-                    for fut in backend.wait_any(pending):
-                        i = futures[fut]
-                        out[i:i + chunk] = fut.result()
-                        bar.update(min(chunk, len(s) - i))
-                        pending.discard(fut)
-        except BaseException:
-            backend.close(abort=True)
-            raise
-        backend.close(abort=False)
+        from .study.execution import run_tasks
+
+        tasks = ((i, (self.model, s[i:i + chunk])) for i in range(0, len(s), chunk))
+        workers = min(jobs, -(-len(s) // chunk))
+        with tqdm(total=len(s), desc="forward solves", unit="frame", disable=not progress, leave=False) as bar, \
+                contextlib.closing(run_tasks(_simulate_chunk, tasks, jobs=workers)) as batches:
+            for batch in batches:
+                for i, volts in batch:
+                    out[i:i + chunk] = volts
+                    bar.update(len(volts))
         return out
 
 

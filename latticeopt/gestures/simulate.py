@@ -176,24 +176,17 @@ def _simulate_block(model, keys, seed, pool, gcfg, mcfg, simulator=None):
 
 def _run_parallel(blocks, results, bar, workers: int, args) -> None:
     """Blocks in worker processes (each rebuilds the forward model once per block)."""
-    from ..study.execution import make_backend
+    import contextlib
+
+    from ..study.execution import run_tasks
 
     model, seed, pool, gcfg, mcfg = args
-    backend = make_backend("local", workers, None)
-    try:
-        futures = {backend.submit(_simulate_block, model, k, seed, pool, gcfg, mcfg): b
-                   for b, k in enumerate(blocks)}
-        pending = set(futures)
-        while pending:
-            for fut in backend.wait_any(pending):
-                b = futures[fut]
-                results[b] = fut.result()
+    tasks = ((b, (model, k, seed, pool, gcfg, mcfg)) for b, k in enumerate(blocks))
+    with contextlib.closing(run_tasks(_simulate_block, tasks, jobs=workers)) as batches:
+        for batch in batches:
+            for b, result in batch:
+                results[b] = result
                 bar.update(len(blocks[b]))
-                pending.discard(fut)
-    except BaseException:
-        backend.close(abort=True)
-        raise
-    backend.close(abort=False)
 
 
 @dataclass(frozen=True, eq=False)
