@@ -1,7 +1,8 @@
-"""Versioned ``.npz`` files without pickles: JSON metadata beside named arrays, written atomically.
+"""``.npz`` files without pickles, written atomically; versioned ones carry JSON metadata beside the arrays.
 
-Used by the reconstruction and gesture datasets. A file carries ``format`` and ``format_version`` in its
-metadata; a reader accepts its own format at its version or older.
+:func:`write_npz_atomic` is the one writer of every ``.npz`` the package produces (meshes, sensor models,
+datasets, networks). :func:`save_npz` / :func:`load_npz` add a ``format`` and ``format_version`` header, used by
+the reconstruction and gesture datasets; a reader accepts its own format at its version or older.
 """
 
 from __future__ import annotations
@@ -20,16 +21,37 @@ from .errors import ParameterError
 T = TypeVar("T")
 
 
-def save_npz(path: str | Path, fmt: str, version: int, meta: Mapping, arrays: Mapping[str, np.ndarray]) -> Path:
-    """Write ``arrays`` and ``meta`` (JSON-able) to ``path`` through a per-process ``.part`` file and a rename,
-    so readers and concurrent writers never see a half-written file."""
+def write_npz_atomic(path: str | Path, arrays: Mapping[str, np.ndarray], *, compressed: bool = False) -> Path:
+    """Write ``arrays`` to ``path`` through a per-process ``.part`` file and a rename, so readers and concurrent
+    writers never see a half-written file; a failure while writing leaves neither the file nor the ``.part``.
+
+    Parameters
+    ----------
+    path
+        Target ``.npz`` file (replaced if it exists).
+    arrays
+        Name -> array; object arrays are refused (``np.load`` reads these files with ``allow_pickle=False``).
+    compressed
+        Deflate the members (``np.savez_compressed``).
+    """
     path = Path(path)
-    header = {"format": fmt, "format_version": version, **meta}
     tmp = path.with_name(f"{path.name}.{os.getpid()}.part")
-    with open(tmp, "wb") as fh:
-        np.savez(fh, metadata=np.array(json.dumps(header)), **arrays)
-    tmp.replace(path)
+    save = np.savez_compressed if compressed else np.savez
+    try:
+        with open(tmp, "wb") as fh:
+            save(fh, allow_pickle=False, **arrays)
+        tmp.replace(path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
     return path
+
+
+def save_npz(path: str | Path, fmt: str, version: int, meta: Mapping, arrays: Mapping[str, np.ndarray]) -> Path:
+    """Write ``arrays`` and ``meta`` (JSON-able) with a ``format`` / ``format_version`` header
+    (:func:`write_npz_atomic`)."""
+    header = {"format": fmt, "format_version": version, **meta}
+    return write_npz_atomic(path, {"metadata": np.array(json.dumps(header)), **arrays})
 
 
 def load_npz(path: str | Path, fmt: str, version: int, build: Callable[[dict, Mapping], T], expected: str) -> T:

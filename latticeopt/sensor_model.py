@@ -21,7 +21,6 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
-import os
 import zipfile
 import zlib
 from dataclasses import dataclass, field
@@ -32,6 +31,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from . import _validate as v
+from ._npzfile import write_npz_atomic
 from .design import REGION_IDS, LatticeDesign
 from .electrics import DEFAULT_CONTACT_IMPEDANCE_OHM_M2, DEFAULT_CURRENT_A, DEFAULT_SIGMA_S_PER_M, ForwardModel
 from .electrics.protocol import Protocol
@@ -237,11 +237,7 @@ def save_sensor_model(model: SensorModel, path: str | Path) -> Path:
         "mesh_electrode_weights": np.concatenate([m.weights(electrode_name(k + 1)) for k in range(n_e)]),
         "sigma_S_per_m": model.sigma_S_per_m, "contact_impedance_ohm_m2": model.contact_impedance_ohm_m2,
     }
-    tmp = path.with_name(f"{path.name}.{os.getpid()}.part")
-    with open(tmp, "wb") as fh:
-        np.savez_compressed(fh, **arrays)
-    tmp.replace(path)
-    return path
+    return write_npz_atomic(path, arrays, compressed=True)
 
 
 def export_sensor_model(design: LatticeDesign, path: str | Path, mesh_settings: MeshSettings | None = None,

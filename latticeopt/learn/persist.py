@@ -19,12 +19,12 @@ do not fit the architecture give a :class:`~latticeopt.errors.ParameterError` na
 from __future__ import annotations
 
 import json
-import os
 import zipfile
 from pathlib import Path
 
 import numpy as np
 
+from .._npzfile import write_npz_atomic
 from ..errors import ParameterError
 from ._torch import require_torch
 
@@ -81,12 +81,7 @@ def save_model(path: str | Path, model, *, metadata: dict | None = None) -> Path
     arrays = {_META: np.frombuffer(meta_bytes, dtype=np.uint8)}
     for key, tensor in model.state_dict().items():
         arrays[_STATE + key] = tensor.detach().cpu().numpy()
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as fh:
-        np.savez(fh, **arrays)
-    os.replace(tmp, path)
-    return path
+    return write_npz_atomic(path, arrays)
 
 
 def _bad(path: Path, why: str) -> ParameterError:

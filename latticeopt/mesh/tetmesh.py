@@ -18,12 +18,12 @@ Facet set names: ``top``, ``bottom``, ``hydrogel_boundary`` and ``electrode_1`` 
 from __future__ import annotations
 
 import dataclasses
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from .._npzfile import write_npz_atomic
 from ..design import REGION_IDS, REGION_NAMES
 
 #: Version of the ``.npz`` layout; 2 added the optional ``cells`` array.
@@ -256,11 +256,7 @@ class TetMesh:
             arrays[f"facet:{name}"] = tri
         for name, w in self.facet_weights.items():
             arrays[f"weight:{name}"] = w
-        path = Path(path)
-        tmp = path.with_name(f"{path.name}.{os.getpid()}.part")
-        with open(tmp, "wb") as fh:
-            np.savez_compressed(fh, **arrays)
-        tmp.replace(path)  # atomic: a crash never leaves a half-written cache entry
+        write_npz_atomic(path, arrays, compressed=True)  # a crash never leaves a half-written cache entry
 
     @classmethod
     def load(cls, path: str | Path) -> TetMesh:
