@@ -277,7 +277,7 @@ def test_model_failures_and_singular_factorizations_are_phantom_failures():
     from pypardiso.pardiso_wrapper import PyPardisoError
 
     from latticeopt.errors import MeshError, ModelFailure
-    from latticeopt.study.sweep import is_model_failure
+    from latticeopt.study.worker import is_model_failure
 
     assert is_model_failure(ConvergenceError("x")) and is_model_failure(MeshError("x"))
     assert is_model_failure(ModelFailure("a custom model's own failure"))
@@ -448,7 +448,7 @@ def test_model_return_contract():
     from latticeopt.design import LatticeDesign
     from latticeopt.study.config import EvalSettings
     from latticeopt.study.phantoms import random_phantom
-    from latticeopt.study.sweep import result_to_evaluation
+    from latticeopt.study.worker import result_to_evaluation
 
     design, phantom, settings = LatticeDesign(), random_phantom(100.0, 2, 0, seed=0), EvalSettings()
     worker = {"host": "h", "pid": 1, "blas_threads": {}}
