@@ -95,15 +95,23 @@ class PhysicsSettings:
         set_(self, "indenter", v.choice("indenter", self.indenter, INDENTERS))
         set_(self, "in_plane", v.choice("in_plane", self.in_plane, IN_PLANE))
         set_(self, "punch_edge", v.choice("punch_edge", self.punch_edge, PUNCH_EDGES))
-        for name in ("silicone_shear_kPa", "hydrogel_shear_kPa", "sigma_S_per_m", "current_A"):
+        for name in ("sigma_S_per_m", "current_A"):
             set_(self, name, v.real(name, getattr(self, name), lo=0, lo_open=True))
         set_(self, "mechanics_rtol", v.real("mechanics_rtol", self.mechanics_rtol, lo=0, lo_open=True, hi=1e-1))
         # the complete electrode model divides by z_c (ForwardModel rejects z_c <= 0): 0 would pass here and
         # then fail every phantom
         set_(self, "contact_impedance_ohm_m2",
              v.real("contact_impedance_ohm_m2", self.contact_impedance_ohm_m2, lo=0, lo_open=True))
-        for name in ("hydrogel_poisson_ratio", "silicone_poisson_ratio"):
-            set_(self, name, v.real(name, getattr(self, name), lo=0, hi=0.5, hi_open=True))
+        # the materials' own checks are the one schema of their ranges; errors name this table's keys
+        for material in ("silicone", "hydrogel"):
+            shear, nu = f"{material}_shear_kPa", f"{material}_poisson_ratio"
+            try:
+                law = NeoHookean(getattr(self, shear), getattr(self, nu))
+            except ParameterError as exc:
+                key = shear if exc.name == "shear_modulus_kPa" else nu
+                raise ParameterError(key, exc.expected.replace(exc.name, key), exc.got) from None
+            set_(self, shear, law.shear_modulus_kPa)
+            set_(self, nu, law.poisson_ratio)
 
     @classmethod
     def from_dict(cls, values: dict | None) -> PhysicsSettings:

@@ -112,3 +112,24 @@ def test_mechanics_rtol_is_validated_and_does_not_move_vrel(model, tmp_path):
     # the default stops well before round-off, yet V_rel agrees far below the mesh error (percent)
     assert loose.v_rel == pytest.approx(exact.v_rel, rel=1e-4)
     assert loose.forces_N == pytest.approx(exact.forces_N, rel=1e-3)
+
+
+@pytest.mark.parametrize("value", [-1.0, -0.1, 0.0, 0.3, 0.49, 0.4999, 0.5, 0.7, 1e-300, 5.0, 2e7, float("nan"), "x"])
+def test_physics_material_keys_accept_exactly_what_the_material_law_accepts(value):
+    """One schema: the [physics] material keys have no range of their own, so a value passes both or neither."""
+    from latticeopt.mechanics.materials import NeoHookean
+
+    for key, make_law in (("hydrogel_poisson_ratio", lambda x: NeoHookean(5.0, x)),
+                          ("silicone_shear_kPa", lambda x: NeoHookean(x, 0.49))):
+        try:
+            make_law(value)
+            law_ok = True
+        except ParameterError:
+            law_ok = False
+        try:
+            PhysicsSettings(**{key: value})
+            physics_ok = True
+        except ParameterError as exc:
+            physics_ok = False
+            assert exc.name == key
+        assert physics_ok == law_ok, (key, value)

@@ -70,8 +70,8 @@ class NeoHookean:
         object.__setattr__(self, "shear_modulus_kPa", v.real(
             "shear_modulus_kPa", self.shear_modulus_kPa, lo=0, lo_open=True, hi=1e7))
         object.__setattr__(self, "poisson_ratio", v.real(
-            "poisson_ratio", self.poisson_ratio, lo=-1, hi=0.5, lo_open=True, hi_open=True,
-            expected="-1 < poisson_ratio < 0.5 (0.5 itself would need an infinite bulk modulus)"))
+            "poisson_ratio", self.poisson_ratio, lo=0, hi=0.5, hi_open=True,
+            expected="0 <= poisson_ratio < 0.5 (0.5 itself would need an infinite bulk modulus)"))
 
     @property
     def mu_MPa(self) -> float:
