@@ -8,7 +8,7 @@
 >>> 0.01 < result.v_rel < 0.1, result.voltages.shape
 (True, (208,))
 
-Conductivity change under load comes from the deformed geometry alone (DESIGN.md §3): the hydrogel keeps its
+Conductivity change under load comes from the deformed geometry alone (no strain law assumed): the hydrogel keeps its
 conductivity per unit volume and the electrics are solved on the deformed hydrogel mesh, electrodes moving
 with it.
 
