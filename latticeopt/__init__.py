@@ -32,11 +32,11 @@ from .errors import (
     ModelFailure,
     ParameterError,
 )
-from .layout import read_geojson, write_geojson
+from .layout import read_geojson, read_layout, write_geojson
 from .mesh import MeshSettings, TetMesh, mesh_design
 from .touches import Touch
 
-__version__ = "0.1.0"
+__version__ = "0.2.0.dev0"
 
 #: Names imported on first access (PEP 562): name -> defining module.
 _LAZY = {
@@ -70,6 +70,6 @@ __all__ = [
     "REGION_IDS", "AllFailedError", "ConvergenceError", "CoupledModel", "FolderLockedError", "ForwardModel",
     "LatticeDesign", "LatticeoptError", "MeshError", "MeshSettings", "ModelBugError", "ModelFailure",
     "ParameterError", "PhysicsSettings", "Protocol", "TetMesh", "Touch", "__version__", "export_sensor_model",
-    "load_sensor_model", "load_study", "mesh_design", "read_geojson", "run_sweep", "simulate",
+    "load_sensor_model", "load_study", "mesh_design", "read_geojson", "read_layout", "run_sweep", "simulate",
     "study_from_dict", "write_geojson",
 ]

@@ -233,3 +233,14 @@ def test_grid_may_vary_any_design_field(tmp_path):
     s = load_study(_write(tmp_path, text))
     assert len(s.designs) == 4 and all(isinstance(d, LatticeDesign) for d in s.designs)
     assert set(s.grid_fields) <= set(DESIGN_FIELDS)
+
+
+def test_package_version_is_the_distribution_version():
+    """The version is part of every store and mesh key: the one in pyproject.toml and the package agree."""
+    import tomllib
+    from pathlib import Path
+
+    import latticeopt
+
+    meta = tomllib.loads((Path(__file__).resolve().parents[1] / "pyproject.toml").read_text())
+    assert latticeopt.__version__ == meta["project"]["version"]
