@@ -8,9 +8,10 @@
 >>> 0.01 < result.v_rel < 0.1, result.voltages.shape
 (True, (208,))
 
-Conductivity change under load comes from the deformed geometry alone (no strain law assumed): the hydrogel keeps its
-conductivity per unit volume and the electrics are solved on the deformed hydrogel mesh, electrodes moving
-with it.
+By default the conductivity change under load comes from the deformed geometry alone (no strain law
+assumed): the hydrogel keeps its conductivity per unit volume and the electrics are solved on the deformed
+hydrogel mesh, electrodes moving with it. ``conductivity_law`` adds a strain-dependent conductivity evaluated
+on the mechanics' patch averages (:mod:`latticeopt.conductivity`).
 
 ``V_rel = mean_i |V_i - V_i_ref| / |V_i_ref|`` over the measurement rows (paper eq. 5). With the adjacent
 protocol the 208 rows are the 104 independent ones twice (reciprocity), so the mean over 208 equals the mean
@@ -27,6 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import _validate as v
+from .conductivity import CONDUCTIVITY_LAWS, CONDUCTIVITY_MEASURES, conductivity_factor, patch_measures
 from .design import LatticeDesign
 from .electrics.forward import (
     DEFAULT_CONTACT_IMPEDANCE_OHM_M2,
@@ -71,6 +73,11 @@ class PhysicsSettings:
         Electrode contact impedance ``z_c`` (ohm m^2), ``> 0``.
     current_A
         Drive current (A); ``V_rel`` does not depend on it (linear problem).
+    conductivity_law, conductivity_measure, conductivity_k
+        Hydrogel conductivity under load: ``"geometry"`` (default: unchanged per unit volume), ``"linear"``
+        (``sigma0 (1 + k (1 - m))``) or ``"power"`` (``sigma0 m^k``), ``m`` the patch-averaged ``"stretch_z"``
+        (default) or volume ratio ``"J"``; ``-50 <= k <= 50``, ignored by ``"geometry"``. Meaning, the
+        ``k = -1`` ionic idealisation and how to measure ``k``: :mod:`latticeopt.conductivity`.
     mechanics_rtol
         Convergence of the final indentation state, ``|R_free| <= rtol |R_constrained|``
         (:class:`~latticeopt.mechanics.IndentSettings` ``rtol``). 1e-4 here, against 1e-6 for the indentation on
@@ -88,10 +95,17 @@ class PhysicsSettings:
     sigma_S_per_m: float = DEFAULT_SIGMA_S_PER_M
     contact_impedance_ohm_m2: float = DEFAULT_CONTACT_IMPEDANCE_OHM_M2
     current_A: float = DEFAULT_CURRENT_A
+    conductivity_law: str = "geometry"
+    conductivity_measure: str = CONDUCTIVITY_MEASURES[0]
+    conductivity_k: float = 0.0
     mechanics_rtol: float = 1e-4
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
+        set_(self, "conductivity_law", v.choice("conductivity_law", self.conductivity_law, CONDUCTIVITY_LAWS))
+        set_(self, "conductivity_measure",
+             v.choice("conductivity_measure", self.conductivity_measure, CONDUCTIVITY_MEASURES))
+        set_(self, "conductivity_k", v.real("conductivity_k", self.conductivity_k, lo=-50.0, hi=50.0))
         set_(self, "indenter", v.choice("indenter", self.indenter, INDENTERS))
         set_(self, "in_plane", v.choice("in_plane", self.in_plane, IN_PLANE))
         set_(self, "punch_edge", v.choice("punch_edge", self.punch_edge, PUNCH_EDGES))
@@ -200,6 +214,15 @@ class CoupledModel:
         self.reference = ForwardModel(self.mesh, sigma_S_per_m=p.sigma_S_per_m,
                                       contact_impedance_ohm_m2=p.contact_impedance_ohm_m2, current_A=p.current_A)
         self.reference_voltages = self.reference.voltages
+        self._gel_tets = self._gel_patch = None
+        if p.conductivity_law != "geometry":
+            # the patches the mechanics averages the dilatation over, for the hydrogel tets in the forward
+            # model's element order
+            from .mechanics.assembly import dilatation_patches
+
+            gel = self.reference.gel_tet_ids
+            self._gel_tets = self.mesh.tets[gel]
+            self._gel_patch = dilatation_patches(self.mesh, self.mechanics.settings.volumetric)[gel]
         self.setup_seconds = time.perf_counter() - t0
 
     def simulate(self, touches) -> SimulationResult:
@@ -207,7 +230,7 @@ class CoupledModel:
         t0 = time.perf_counter()
         ind = self.mechanics.solve(touches)
         t1 = time.perf_counter()
-        deformed = self.reference.with_nodes(ind.deformed_mesh.nodes_mm)
+        deformed = self.reference.with_nodes(ind.deformed_mesh.nodes_mm, self._conductivity(ind))
         volts = deformed.voltages
         t2 = time.perf_counter()
         return SimulationResult(
@@ -215,6 +238,18 @@ class CoupledModel:
             reference_voltages=self.reference_voltages, forces_N=np.asarray(ind.forces_N),
             max_hydrogel_stretch=float(ind.max_hydrogel_stretch), newton_steps=int(ind.newton_steps),
             timings={"mechanics": t1 - t0, "electrics": t2 - t1, "total": t2 - t0}, indentation=ind)
+
+
+    def _conductivity(self, ind) -> np.ndarray | None:
+        """Hydrogel conductivity per tet of the deformed state (S/m), None for the geometry law."""
+        p = self.physics
+        if p.conductivity_law == "geometry":
+            return None
+        # hydrogel nodes are never moved by the conforming punch rim: the mesh's nodes are their reference
+        J, stretch_z = patch_measures(self.mesh.nodes_mm, ind.deformed_mesh.nodes_mm, self._gel_tets,
+                                      self._gel_patch)
+        factor = conductivity_factor(p.conductivity_law, p.conductivity_measure, p.conductivity_k, J, stretch_z)
+        return p.sigma_S_per_m * factor
 
 
 def simulate(design: LatticeDesign, touches, mesh_settings: MeshSettings | None = None,
