@@ -17,41 +17,44 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["dumps", "strict_jsonable"]
+__all__ = ["dumps", "jsonable"]
 
 
-def strict_jsonable(obj):
-    """A copy of ``obj`` that :func:`json.dumps` accepts with ``allow_nan=False``.
+def jsonable(obj, *, strict: bool = False):
+    """A copy of ``obj`` that :func:`json.dumps` accepts.
 
     Parameters
     ----------
     obj
         Nested dicts, lists and tuples of numbers, strings, numpy scalars and arrays and paths.
+    strict
+        Also replace NaN and +-inf by ``None`` (for ``allow_nan=False``: what the tool prints). Without it they
+        stay floats (the results store keeps them, as Python's json writes them).
 
     Returns
     -------
     object
-        Dict keys as strings, numpy values as Python ones, paths as strings, NaN and +-inf as ``None``.
+        Dict keys as strings, numpy values as Python ones, paths as strings.
     """
     if isinstance(obj, dict):
-        return {str(k): strict_jsonable(v) for k, v in obj.items()}
+        return {str(k): jsonable(v, strict=strict) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
-        return [strict_jsonable(v) for v in obj]
+        return [jsonable(v, strict=strict) for v in obj]
     if isinstance(obj, np.ndarray):
-        return strict_jsonable(obj.tolist())
+        return jsonable(obj.tolist(), strict=strict)
     if isinstance(obj, np.generic):
-        return strict_jsonable(obj.item())
+        return jsonable(obj.item(), strict=strict)
     if isinstance(obj, Path):
         return str(obj)
-    if isinstance(obj, float) and not math.isfinite(obj):
+    if strict and isinstance(obj, float) and not math.isfinite(obj):
         return None
     return obj
 
 
 def dumps(obj, *, default=None, **kwargs) -> str:
-    """:func:`json.dumps` of :func:`strict_jsonable` ``(obj)``; raises rather than write ``NaN``.
+    """:func:`json.dumps` of :func:`jsonable` ``(obj, strict=True)``; raises rather than write ``NaN``.
 
     ``default`` (as for :func:`json.dumps`) converts other objects; what it returns is made strict too.
     """
-    wrapped = None if default is None else (lambda o: strict_jsonable(default(o)))
-    return json.dumps(strict_jsonable(obj), allow_nan=False, default=wrapped, **kwargs)
+    wrapped = None if default is None else (lambda o: jsonable(default(o), strict=True))
+    return json.dumps(jsonable(obj, strict=True), allow_nan=False, default=wrapped, **kwargs)

@@ -15,8 +15,9 @@ from pathlib import Path
 
 import numpy as np
 
+from .._jsonout import jsonable
 from ..study.report import write_csv
-from ..study.store import STORE_NAME, ResultStore, jsonable
+from ..study.store import STORE_NAME, ResultStore
 from .problem import effective_bounds_text
 
 __all__ = ["history_rows", "plot_convergence", "plot_path", "stored_map", "write_optimization_outputs"]

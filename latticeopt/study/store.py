@@ -45,9 +45,10 @@ from pathlib import Path
 
 import numpy as np
 
+from .._jsonout import jsonable
 from ..errors import FolderLockedError, LatticeoptError
 
-__all__ = ["LOCK_NAME", "STATUSES", "STORE_NAME", "Evaluation", "ResultStore", "folder_lock", "jsonable"]
+__all__ = ["LOCK_NAME", "STATUSES", "STORE_NAME", "Evaluation", "ResultStore", "folder_lock"]
 
 STORE_NAME = "results.sqlite"
 LOCK_NAME = "latticeopt.lock"
@@ -92,21 +93,6 @@ _PUT = (f"INSERT INTO evaluations ({', '.join(_COLUMNS)}) VALUES ({', '.join('?'
 
 def _to_json(obj) -> str:
     return json.dumps(jsonable(obj), sort_keys=True, allow_nan=True)
-
-
-def jsonable(obj):
-    """Make numpy scalars/arrays and tuples JSON-serializable."""
-    if isinstance(obj, dict):
-        return {str(k): jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return jsonable(obj.tolist())
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, Path):
-        return str(obj)
-    return obj
 
 
 @dataclass(frozen=True)

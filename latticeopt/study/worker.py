@@ -18,10 +18,11 @@ from collections.abc import Callable
 
 import numpy as np
 
+from .._jsonout import jsonable
 from ..errors import LatticeoptError, ModelFailure
 from .execution import blas_threads
 from .settings import EvalSettings
-from .store import Evaluation, jsonable
+from .store import Evaluation
 
 __all__ = ["FAILURE_TYPES", "evaluate_chunk", "is_model_failure", "result_to_evaluation"]
 
