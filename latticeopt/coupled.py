@@ -239,7 +239,6 @@ class CoupledModel:
             max_hydrogel_stretch=float(ind.max_hydrogel_stretch), newton_steps=int(ind.newton_steps),
             timings={"mechanics": t1 - t0, "electrics": t2 - t1, "total": t2 - t0}, indentation=ind)
 
-
     def _conductivity(self, ind) -> np.ndarray | None:
         """Hydrogel conductivity per tet of the deformed state (S/m), None for the geometry law."""
         p = self.physics

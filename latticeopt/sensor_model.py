@@ -3,8 +3,8 @@
 :func:`export_sensor_model` meshes a design, solves its rest state at the background conductivity and writes
 a versioned ``.npz`` (no pickles; metadata as a JSON string) that :func:`load_sensor_model` reads back into a
 frozen :class:`SensorModel`. :class:`~latticeopt.sensor_simulator.SensorSimulator` (importable from here too)
-rebuilds the forward model from a loaded file and
-simulates voltage frames of pixel-conductivity images. The format is documented in ``docs/sensor_model.md``.
+rebuilds the forward model from a loaded file and simulates voltage frames of pixel-conductivity images. The
+format is documented in ``docs/sensor_model.md``.
 
 Background conductivity and contact impedance
 ---------------------------------------------

@@ -195,8 +195,7 @@ class IndentationSolver(TangentSolves):
         first = 0  # start of the iterates the divergence test compares
         refactor_next = False
         krylov = s.method == "newton-krylov"
-        max_it = s.max_newton
-        for it in range(max_it + 1):
+        for it in range(s.max_newton + 1):
             D, vals = cons.dirichlet(lam)
             isD = np.zeros(n, dtype=bool)
             isD[D] = True
@@ -216,8 +215,8 @@ class IndentationSolver(TangentSolves):
                     return u, ev, norms
                 first = len(norms)  # the sphere's contact set changed: solve again, judging divergence afresh
                 continue
-            if it == max_it:
-                raise _StepFailed(f"no convergence in {max_it} iterations", r_free, ev.min_J, tuple(norms))
+            if it == s.max_newton:
+                raise _StepFailed(f"no convergence in {s.max_newton} iterations", r_free, ev.min_J, tuple(norms))
             if len(norms) > first + 3 and r_free > 1e3 * min(norms[first + 1:]):
                 raise _StepFailed("residual diverging", r_free, ev.min_J, tuple(norms))
             # Newton: the load increment of a new step goes through the factorization of the last iterate of

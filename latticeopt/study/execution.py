@@ -3,7 +3,7 @@
 :func:`run_tasks` is the one loop every parallel stage uses (sweeps, the sensor model's pixel solves, the
 gesture frames): it keeps a window of tasks in flight, hands back results as they finish, and stops the workers
 when the caller stops early or fails. Each backend under it offers ``submit(fn, *args) -> future``,
-``wait_any(pending) -> done futures``, ``workers``, ``window`` (tasks worth keeping in flight) and
+``wait_any(pending) -> done futures``, ``window`` (tasks worth keeping in flight) and
 ``close(abort)``; :func:`make_backend` picks one. Local worker processes are started fresh (``spawn``) while
 ``OMP/MKL/OPENBLAS_NUM_THREADS=1`` is set in the environment they inherit, so their BLAS/MKL libraries load
 single-threaded; :func:`blas_threads` asks the loaded libraries what they actually use, so the runner can check.
@@ -64,7 +64,6 @@ def blas_threads() -> dict[str, int]:
     return out
 
 
-
 def _worker_init() -> None:
     # Ctrl-C goes to the whole process group; only the parent should react (it stops the workers itself).
     signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -92,7 +91,6 @@ def _pid(_: object) -> int:
 class _Inline:
     """jobs == 1: run each task in this process when its result is asked for."""
 
-    workers = 1
     window = 1  # each task runs when submitted: one at a time keeps every result handed back at once
 
     def submit(self, fn, *args):
@@ -109,7 +107,6 @@ class _Inline:
 
 class _Pool:
     def __init__(self, jobs: int):
-        self.workers = jobs
         self.window = _INFLIGHT_PER_WORKER * jobs
         with _single_thread_env():
             self._ex = cf.ProcessPoolExecutor(max_workers=jobs, mp_context=multiprocessing.get_context("spawn"),
@@ -167,8 +164,7 @@ class _Dask:
         else:
             self.client = scheduler
         n = sum(w.get("nthreads", 1) for w in self.client.scheduler_info()["workers"].values())
-        self.workers = max(n, 1)
-        self.window = _INFLIGHT_PER_WORKER * self.workers
+        self.window = _INFLIGHT_PER_WORKER * max(n, 1)
 
     def submit(self, fn, *args):
         return self.client.submit(fn, *args, pure=False)
