@@ -140,7 +140,7 @@ def main(argv=None) -> int:
         table[f"v_{mode}"] = np.array([np.mean([e.v_rel for e in evs[i * n:(i + 1) * n] if e.ok] or [np.nan])
                                        for i in range(len(designs))])
         table[f"nodes_{mode}"] = np.array([math.prod(len(c) for c in grid_coordinates(
-            d, mesh.size_mm, mesh.channel_cells, mesh.layer_cells, mode)) for d in designs])
+            d, mesh.size_mm, mesh.resolved(d).channel_cells, mesh.layer_cells, mode)) for d in designs])
         print(f"  {mode}: {computed} phantoms computed in {time.perf_counter() - t0:.1f} s")
     header = f"{args.var:>10}" + "".join(f" {'nodes_' + m:>12} {'V_rel_' + m:>12}" for m in args.modes)
     print(header)

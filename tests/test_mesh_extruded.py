@@ -278,3 +278,26 @@ def test_extruded_punch_force_does_not_lock(prism_layer):
         ratio[nu] = res.forces_N[0] / (4 * G_kPa * 1e-3 * a * hayes_kappa(a / h, nu) * d / (1 - nu))
     assert ratio[0.499] == pytest.approx(1.0, rel=0.10)
     assert ratio[0.499] / ratio[0.45] == pytest.approx(1.0, abs=0.02)
+
+
+def test_auto_channel_cells_is_the_family_count_and_keys_follow_the_table(monkeypatch):
+    import latticeopt.mesh as mesh_module
+    from latticeopt.study.settings import EvalSettings
+
+    auto = MeshSettings(size_mm=SIZE)
+    assert auto.channel_cells == "auto"
+    assert auto.resolved(DESIGNS["hexagonal"]).channel_cells == 3
+    for name in ("square-none", "triangular"):
+        assert auto.resolved(DESIGNS[name]).channel_cells == 2
+    assert MeshSettings(channel_cells=1).resolved(DESIGNS["hexagonal"]).channel_cells == 1  # explicit kept
+    # "auto" meshes the hexagonal layout exactly as an explicit 3 does (and differently from 2)
+    hexa = mesh_design(DESIGNS["hexagonal"], auto, cache_dir=False)
+    three = mesh_design(DESIGNS["hexagonal"], MeshSettings(size_mm=SIZE, channel_cells=3), cache_dir=False)
+    two = mesh_design(DESIGNS["hexagonal"], MeshSettings(size_mm=SIZE, channel_cells=2), cache_dir=False)
+    assert np.array_equal(hexa.nodes_mm, three.nodes_mm) and len(two.nodes_mm) < len(three.nodes_mm)
+    # a result key made with "auto" changes when what "auto" stands for does
+    before = EvalSettings(mesh=auto).key
+    monkeypatch.setitem(mesh_module.CHANNEL_CELLS_AUTO, "triangular", 3)
+    assert EvalSettings(mesh=auto).key != before
+    with pytest.raises(ParameterError, match="channel_cells.*'auto'"):
+        MeshSettings(channel_cells="many")

@@ -94,16 +94,28 @@ def touches_from_args(args: argparse.Namespace, design: LatticeDesign) -> tuple:
     return validate_touches(design, touches)
 
 
+def _int_or_auto(text: str) -> int | str:
+    """``--channel-cells``: an integer or ``auto`` (the range is MeshSettings' to check)."""
+    if text == "auto":
+        return text
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected 'auto' or an integer, got {text!r}") from None
+
+
 def add_mesh_args(parser: argparse.ArgumentParser) -> None:
-    from ..mesh import MESHERS, MeshSettings
+    from ..mesh import CHANNEL_CELLS_AUTO, CHANNEL_CELLS_DEFAULT, MESHERS, MeshSettings
 
     d = MeshSettings()
+    auto = ", ".join([f"{k} {n}" for k, n in CHANNEL_CELLS_AUTO.items()] + [f"else {CHANNEL_CELLS_DEFAULT}"])
     g = parser.add_argument_group("mesh")
     g.add_argument("--mesher", default=None, help=f"one of {', '.join(MESHERS)}; default {d.mesher}")
     g.add_argument("--size", dest="mesh_size_mm", type=float, default=None,
                    help=f"target element size (mm); default {d.size_mm}")
-    g.add_argument("--channel-cells", type=int, default=None,
-                   help=f"grid: minimum cells across a channel; default {d.channel_cells}")
+    g.add_argument("--channel-cells", type=_int_or_auto, default=None,
+                   help=f"grid and extruded: minimum cells across a channel, or 'auto' (the family's converged "
+                        f"count: {auto}); default {d.channel_cells}")
     g.add_argument("--layer-cells", type=int, default=None,
                    help=f"grid: minimum cells through the conductive layer; default {d.layer_cells}")
     g.add_argument("--epsilon", dest="epsilon_rel", type=float, default=None,

@@ -36,6 +36,12 @@ log = logging.getLogger(__name__)
 MESHERS = ("auto", "grid", "extruded", "tetwild")
 #: Grid cell-count rules (:func:`latticeopt.mesh.grid.grid_coordinates`).
 CELL_COUNTS = ("size", "fixed")
+#: ``channel_cells = "auto"``: cells across a channel per layout family, the fewest whose V_rel lies within 2 % of
+#: the finest mesh measured (four paper phantoms and a centre press; docs/verification.md, "Mesh convergence per
+#: family"): 2 mm with 2 cells is 2.8 % off a 1 mm / 4-cell mesh on the hexagonal lattice, with 3 cells 1.1 %.
+CHANNEL_CELLS_AUTO = {"hexagonal": 3}
+#: ``channel_cells = "auto"`` for every family not in :data:`CHANNEL_CELLS_AUTO`.
+CHANNEL_CELLS_DEFAULT = 2
 
 
 @dataclass(frozen=True)
@@ -52,7 +58,9 @@ class MeshSettings:
         Target edge length (mm): the largest grid cell, the extruded mesher's triangle edge and z cell, or
         tetwild's absolute ideal edge length.
     channel_cells
-        Grid and extruded: minimum cells (triangles) across a channel.
+        Grid and extruded: minimum cells (triangles) across a channel, or ``"auto"`` (default): the family's
+        converged count, :data:`CHANNEL_CELLS_AUTO` (3 for ``hexagonal``), else :data:`CHANNEL_CELLS_DEFAULT` (2);
+        :meth:`resolved` replaces it.
     layer_cells
         Grid and extruded: minimum cells through the conductive layer.
     epsilon_rel
@@ -72,7 +80,7 @@ class MeshSettings:
 
     mesher: str = "auto"
     size_mm: float = 2.0
-    channel_cells: int = 2
+    channel_cells: int | str = "auto"
     layer_cells: int = 2
     epsilon_rel: float = 1e-3
     cell_counts: str = "size"
@@ -81,7 +89,10 @@ class MeshSettings:
     def __post_init__(self) -> None:
         object.__setattr__(self, "mesher", v.choice("mesher", self.mesher, MESHERS))
         object.__setattr__(self, "size_mm", v.real("size_mm", self.size_mm, lo=0.05, hi=50.0))
-        object.__setattr__(self, "channel_cells", v.integer("channel_cells", self.channel_cells, lo=1, hi=16))
+        if self.channel_cells != "auto":
+            object.__setattr__(self, "channel_cells", v.integer(
+                "channel_cells", self.channel_cells, lo=1, hi=16,
+                expected="'auto' or an integer 1 <= channel_cells <= 16"))
         object.__setattr__(self, "layer_cells", v.integer("layer_cells", self.layer_cells, lo=1, hi=32))
         object.__setattr__(self, "epsilon_rel", v.real("epsilon_rel", self.epsilon_rel, lo=1e-5, hi=1e-2))
         object.__setattr__(self, "cell_counts", v.choice("cell_counts", self.cell_counts, CELL_COUNTS))
@@ -92,14 +103,27 @@ class MeshSettings:
                                  "cell_counts = 'size'", self.electrode_edges)
 
     def resolved(self, design: LatticeDesign) -> MeshSettings:
-        """These settings with ``mesher = "auto"`` replaced by the mesher it picks for ``design``.
+        """These settings with every ``"auto"`` replaced by what it picks for ``design``.
 
-        ``"grid"`` when the layout is axis-aligned (:attr:`LatticeDesign.is_axis_aligned`), else
-        ``"extruded"``; any other mesher is returned unchanged.
+        ``mesher``: ``"grid"`` when the layout is axis-aligned (:attr:`LatticeDesign.is_axis_aligned`), else
+        ``"extruded"``. ``channel_cells``: the family's count (:data:`CHANNEL_CELLS_AUTO`). Explicit values are
+        kept.
         """
-        if self.mesher != "auto":
-            return self
-        return dataclasses.replace(self, mesher="grid" if design.is_axis_aligned else "extruded")
+        mesher = self.mesher
+        if mesher == "auto":
+            mesher = "grid" if design.is_axis_aligned else "extruded"
+        cells = self.channel_cells
+        if cells == "auto":
+            cells = CHANNEL_CELLS_AUTO.get(design.pattern, CHANNEL_CELLS_DEFAULT)
+        return dataclasses.replace(self, mesher=mesher, channel_cells=cells)
+
+    def identity(self) -> dict:
+        """Every field, with what ``"auto"`` stands for spelled out (the per-family table), for result keys
+        that must change when an automatic choice does."""
+        out = dataclasses.asdict(self)
+        if out["channel_cells"] == "auto":
+            out["channel_cells"] = {"auto": {**CHANNEL_CELLS_AUTO, "*": CHANNEL_CELLS_DEFAULT}}
+        return out
 
     def as_dict(self) -> dict:
         out = dataclasses.asdict(self)

@@ -33,7 +33,8 @@ def _mesh_caption(study: Study) -> str:
     meshers = sorted({m.resolved(d).mesher for d in study.designs}) or [m.mesher]
     parts = [f"{'/'.join(meshers)} mesh, {m.size_mm:g} mm"]
     if set(meshers) & {"grid", "extruded"}:
-        parts.append(f">= {m.channel_cells} cell{'s' if m.channel_cells > 1 else ''} across a channel, "
+        cells = sorted({m.resolved(d).channel_cells for d in study.designs}) or [m.channel_cells]
+        parts.append(f">= {'/'.join(map(str, cells))} cell{'s' if cells != [1] else ''} across a channel, "
                      f">= {m.layer_cells} through the layer")
     if "tetwild" in meshers:
         parts.append(f"envelope {m.epsilon_rel:g}")

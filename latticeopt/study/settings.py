@@ -116,7 +116,8 @@ class EvalSettings:
         Returns
         -------
         dict
-            ``mesh``: every :class:`MeshSettings` field, defaults included. ``physics``: for the default model,
+            ``mesh``: every :class:`MeshSettings` field, defaults included (``"auto"`` spelled out:
+            :meth:`MeshSettings.identity`). ``physics``: for the default model,
             the resolved :class:`latticeopt.coupled.PhysicsSettings` (all fields) and the
             :class:`latticeopt.mechanics.IndentSettings` it hands the solver (``indent``, materials nested);
             for any other model, the ``[physics]`` table as given (its defaults are the model's own business).
@@ -142,7 +143,7 @@ class EvalSettings:
             except ParameterError as exc:  # a combination PHYSICS_KEYS's per-key checks cannot see
                 raise ParameterError(f"physics.{exc.name}", exc.expected, exc.got) from None
             physics = {**resolved.as_dict(), "indent": resolved.indent_settings().as_dict()}
-        return {"mesh": dataclasses.asdict(self.mesh), "physics": physics, "model": self.model,
+        return {"mesh": self.mesh.identity(), "physics": physics, "model": self.model,
                 "version": __version__}
 
     @property
