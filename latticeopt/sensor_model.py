@@ -190,7 +190,7 @@ def build_sensor_model(design: LatticeDesign, mesh_settings: MeshSettings | None
                   {electrode_name(k + 1): gel.facets[electrode_name(k + 1)] for k in range(gel.n_electrodes)},
                   {electrode_name(k + 1): gel.weights(electrode_name(k + 1)) for k in range(gel.n_electrodes)},
                   info)
-    return SensorModel(design=design, mesh_settings=settings.as_dict(), electrodes=design.electrodes(),
+    return SensorModel(design=design, mesh_settings=settings.resolved(design).as_dict(), electrodes=design.electrodes(),
                        protocol=fwd.protocol, v_ref=fwd.voltages, jacobian=J, n_pixels=n, extent_mm=extent,
                        pixel_gel_fraction=gel_fraction, pixel_matrix=F, mesh=gel, sigma_S_per_m=fwd.sigma,
                        sigma0_S_per_m=sigma, contact_impedance_ohm_m2=fwd.contact_impedance_ohm_m2,

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import time
 
+from ..errors import ParameterError
 from ._common import (
     add_design_args,
     add_mesh_args,
@@ -30,22 +31,29 @@ def register(sub) -> None:
                    help="contact impedance (ohm m^2); default keeps z_c * sigma = 2e-3 ohm m^3/m (0.641 at sigma0)")
     g.add_argument("--current", type=float, default=DEFAULT_CURRENT_A, help="drive current (A); default 1e-3")
     g.add_argument("--pixels", type=int, default=48, help="pixels per side of the image grid; default 48")
-    p.add_argument("-o", "--output", required=True, help="output .npz file")
+    p.add_argument("--format", default="npz",
+                   help="npz (latticeopt's sensor model, default), eidors (MATLAB .mat fwd_model for EIDORS) or "
+                        "pyeit (.npz of PyEITMesh and PyEITProtocol fields); formats: docs/sensor_model.md")
+    p.add_argument("-o", "--output", required=True, help="output file: .npz (npz, pyeit) or .mat (eidors)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=run_export)
 
 
 def run_export(args) -> int:
+    from ..interop import FORMATS, write_eidors_mat, write_pyeit_npz
     from ..sensor_model import build_sensor_model, save_sensor_model
 
-    out = check_output_path("-o", args.output, suffixes=(".npz",))
+    if args.format not in FORMATS:
+        raise ParameterError("--format", "one of " + ", ".join(FORMATS), args.format)
+    out = check_output_path("-o", args.output, suffixes=(".mat",) if args.format == "eidors" else (".npz",))
     check_mesh_args(args)
     t0 = time.perf_counter()
     cache = False if args.no_cache else args.cache_dir
     model = build_sensor_model(design_from_args(args), mesh_settings_from_args(args), args.sigma,
                                args.contact_impedance, args.pixels, args.current, cache)
-    save_sensor_model(model, out)
-    info = {**model.summary(), "output": str(out), "seconds": time.perf_counter() - t0}
+    writer = {"npz": save_sensor_model, "eidors": write_eidors_mat, "pyeit": write_pyeit_npz}[args.format]
+    writer(model, out)
+    info = {**model.summary(), "format": args.format, "output": str(out), "seconds": time.perf_counter() - t0}
     if args.json:
         emit_json(info)
         return 0
