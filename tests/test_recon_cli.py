@@ -113,6 +113,9 @@ def test_train_then_evaluate_every_method(model_path, tmp_path, capsys):
     assert names == {"background", "tikhonov/noser", "tikhonov/laplacian", "gn/noser", "gn/laplacian", "dnn"}
     assert out["methods"]["gn/noser"]["n"] == 2 and out["methods"]["dnn"]["n"] == 2  # 10 % of 10 per count
     assert set(out["methods"]["dnn"]["by_touches"]) == {"1", "2"}
+    greit = out["methods"]["tikhonov/noser"]["greit"]  # over the test part's one-touch frames
+    assert greit["n"] == 1 and 0 < greit["resolution"] <= 1 and greit["ringing"] >= 0
+    assert out["methods"]["background"]["greit"] == {"n": 1}  # a blank image has nothing to score
     assert fig.stat().st_size > 10_000
 
 

@@ -16,7 +16,7 @@ from ..errors import LatticeoptError, ParameterError
 
 #: Subcommand modules in the order ``--help`` lists them.
 COMMAND_MODULES = ["mesh", "indent", "forward", "simulate", "sweep", "optimize", "calibrate", "sensitivity", "export",
-                   "recon", "recon_learn", "classify"]
+                   "recon", "recon_learn", "merit", "classify"]
 
 
 class _Parser(argparse.ArgumentParser):

@@ -155,6 +155,16 @@ def _print_scores(methods: dict) -> None:
             print(f"  {name:22s} {label:>7s} {s['n']:5d} {s['cc']:7.4f} {s['psnr']:7.2f} {s['ssim']:7.4f} "
                   f"{s['re']:7.4f}")
     print("  paper (real data, best phantom): CC 0.9275, PSNR 29.03 dB, SSIM 0.9660, RE 0.3798")
+    print("GREIT figures, mean over the one-touch frames (docs/sensor_model.md): amplitude (mm^2), position "
+          "error / offset (mm), resolution, shape deformation, ringing")
+    for name, entry in methods.items():
+        g = entry.get("greit", {})
+        if "resolution" not in g:
+            print(f"  {name:22s} n {g.get('n', 0):4d}  (no one-touch frame with an image)")
+            continue
+        print(f"  {name:22s} n {g['n']:4d}  {g['amplitude']:8.3g} {g['position_error_mm']:7.2f} "
+              f"{g['position_offset_mm']:6.2f} {g['resolution']:7.3f} {g['shape_deformation']:7.3f} "
+              f"{g['ringing']:7.3f}")
 
 
 def _check_eval_args(args) -> tuple[tuple[str, ...], tuple[str, ...]]:

@@ -97,6 +97,7 @@ def evaluate_methods(model: SensorModel, data: ReconDataset, methods=("tikhonov"
     data.check_model(model)
     names = parse_methods(methods, priors)
     y, truth, counts = part_arrays(data, model, "test", snr_db=test_snr_db)
+    touches = data.touches[data.test]
     gn_idx = np.concatenate([np.flatnonzero(counts == c)[:gn_per_count] for c in np.unique(counts)])
     out: dict = {"methods": {}, "images": {}, "indices": {}, "truth": truth, "n_touches": counts,
                  "test_snr_db": test_snr_db, "extent_mm": tuple(model.extent_mm)}
@@ -130,7 +131,8 @@ def evaluate_methods(model: SensorModel, data: ReconDataset, methods=("tikhonov"
         scores = evaluate_images(images, truth[idx], groups=counts[idx],
                                  data_range=float(truth.max() - truth.min()))
         entry = {"overall": scores["mean"], "by_touches": scores["by_group"], "n": int(len(idx)),
-                 "seconds": seconds, "seconds_per_frame": seconds / len(idx)}
+                 "seconds": seconds, "seconds_per_frame": seconds / len(idx),
+                 "greit": _single_touch_greit(images, touches[idx], counts[idx], model.extent_mm)}
         if lam_used is not None:
             rel = np.asarray(lam_used) / linear[prior].eigenvalues.max()
             entry["lambda_relative"] = {"rule": lam if isinstance(lam, str) else "fixed",
@@ -141,6 +143,17 @@ def evaluate_methods(model: SensorModel, data: ReconDataset, methods=("tikhonov"
         out["indices"][name] = idx
         log.info("%s: %d frames in %.1f s, CC %.3f", name, len(idx), seconds, scores["mean"]["cc"])
     return out
+
+
+def _single_touch_greit(images: np.ndarray, touches: np.ndarray, counts: np.ndarray, extent_mm) -> dict:
+    """Mean GREIT figures (:mod:`latticeopt.recon.merit`) over the one-touch frames, with their count ``n``."""
+    from .merit import greit_figures
+
+    one = np.flatnonzero(counts == 1)
+    if len(one) == 0 or not np.any(images[one]):
+        return {"n": int(len(one))}
+    figs = greit_figures(images[one], touches[one, 0, :2], extent_mm, contrast=touches[one, 0, 3] - 1)
+    return {"n": int(len(one)), **{k: float(np.nanmean(a)) for k, a in figs.items()}}
 
 
 #: Colour-bar label of every image: the normalized conductivity change, dimensionless.
