@@ -40,6 +40,11 @@ def register(sub) -> None:
     _add_method_args(e, multi_prior=True)
     e.add_argument("--gn-per-count", type=int, default=10, help="test frames per touch count for gn; default 10")
     e.add_argument("--test-snr-db", type=float, default=None, help="noise on the test frames; default none")
+    e.add_argument("--presses", type=int, default=0,
+                   help="also reconstruct this many random single presses simulated by the coupled model of the "
+                        "exported design (minutes each on the default mesh) and report the gap to discs of the "
+                        "same footprint; default 0")
+    e.add_argument("--press-seed", type=int, default=0, help="seed of the presses; default 0")
     e.add_argument("--figure", default=None, help="PNG of ground truth beside each method")
     e.add_argument("--json", action="store_true", help="print one JSON object")
     e.add_argument("--no-progress", action="store_true", help="no progress bars (--json implies it)")
@@ -190,22 +195,41 @@ def _check_eval_args(args) -> tuple[tuple[str, ...], tuple[str, ...]]:
 
 
 def run_eval(args) -> int:
+    from .. import _validate as v
     from ..recon.dataset import ReconDataset
     from ..recon.evaluate import evaluate_methods, plot_comparison
 
     png = check_output_path("--figure", args.figure, suffixes=(".png",))
     methods, priors = _check_eval_args(args)
+    v.integer("--presses", args.presses, lo=0, hi=10_000)
     model = _load_model(args.model)
     data = ReconDataset.load(args.dataset)
+    presses = press_y = None
+    if args.presses:
+        from ..recon.presses import press_frames, random_presses
+
+        presses = random_presses(args.presses, model.design.size_mm, args.press_seed)
+        press_y = press_frames(model, presses, progress=not (args.json or args.no_progress))
     result = evaluate_methods(model, data, methods, priors, _lam(args.lam), args.net, args.gn_per_count,
-                              args.test_snr_db, progress=not (args.json or args.no_progress))
+                              args.test_snr_db, progress=not (args.json or args.no_progress), presses=presses,
+                              press_y=press_y)
     if png is not None:
         plot_comparison(result, png)
     if args.json:
         emit_json({"methods": result["methods"], "test_snr_db": args.test_snr_db,
-                   "figure": None if png is None else str(png)})
+                   "presses": result.get("presses"), "figure": None if png is None else str(png)})
         return 0
     _print_scores(result["methods"])
+    if "presses" in result:
+        print("coupled presses against discs of the same footprint (0.5 sigma0): CC between the two images; "
+              "position offset (mm) and resolution of each")
+        for name, g in result["presses"].items():
+            pr, dc = g["press"], g["disc"]
+            if not pr:
+                print(f"  {name:22s} n {g['n']:4d}  (blank images)")
+                continue
+            print(f"  {name:22s} n {g['n']:4d}  CC {g['cc']:6.3f}  offset {pr['position_offset_mm']:6.2f} / "
+                  f"{dc['position_offset_mm']:6.2f}  resolution {pr['resolution']:6.3f} / {dc['resolution']:6.3f}")
     for name, entry in result["methods"].items():
         lam = entry.get("lambda_relative")
         extra = "" if lam is None else f", lambda/g_max median {lam['median']:.2g} ({lam['rule']})"

@@ -81,7 +81,8 @@ def parse_methods(methods, priors) -> list[str]:
 def evaluate_methods(model: SensorModel, data: ReconDataset, methods=("tikhonov", "dnn"), priors=("noser",),
                      lam="lcurve", net_path: str | Path | None = None, gn_per_count: int = 10,
                      test_snr_db: float | None = None, simulator: SensorSimulator | None = None,
-                     progress: bool = False) -> dict:
+                     progress: bool = False, presses: np.ndarray | None = None,
+                     press_y: np.ndarray | None = None) -> dict:
     """Reconstruct the test part with every method and score it per touch count.
 
     Returns
@@ -90,7 +91,9 @@ def evaluate_methods(model: SensorModel, data: ReconDataset, methods=("tikhonov"
         ``"methods"``: ``{name: {"overall": summary, "by_touches": {count: summary}, "n": int, "seconds":
         float, "lambda": ...}}`` (summaries from :func:`latticeopt.learn.evaluate_images`); ``"images"``:
         ``{name: (k, n, n)}`` and ``"indices"``: ``{name: test positions used}`` for figures; ``"truth"``,
-        ``"n_touches"``: the test images and counts; ``"test_snr_db"``; ``"extent_mm"`` of the image grid.
+        ``"n_touches"``: the test images and counts; ``"test_snr_db"``; ``"extent_mm"`` of the image grid;
+        with ``presses`` (k, 4) and their frames ``press_y`` (:mod:`latticeopt.recon.presses`), ``"presses"``:
+        :func:`~latticeopt.recon.presses.press_gap` of every method.
     """
     from ..learn import evaluate_images
 
@@ -101,7 +104,8 @@ def evaluate_methods(model: SensorModel, data: ReconDataset, methods=("tikhonov"
     gn_idx = np.concatenate([np.flatnonzero(counts == c)[:gn_per_count] for c in np.unique(counts)])
     out: dict = {"methods": {}, "images": {}, "indices": {}, "truth": truth, "n_touches": counts,
                  "test_snr_db": test_snr_db, "extent_mm": tuple(model.extent_mm)}
-    linear = {}
+    linear, fns = {}, {}
+    shape = (model.n_pixels, model.n_pixels)
     for name in names:
         t0 = time.perf_counter()
         kind, _, prior = name.partition("/")
@@ -109,12 +113,14 @@ def evaluate_methods(model: SensorModel, data: ReconDataset, methods=("tikhonov"
         lam_used = None
         if kind == "background":
             images = np.zeros_like(truth)
+            fns[name] = lambda yy: np.zeros((len(yy), *shape))
         elif kind == "dnn":
             if net_path is None:
                 raise ParameterError("--net", "a trained network file for method 'dnn'", None)
             from .dnn import DNNReconstructor
 
-            images = DNNReconstructor(net_path, model).reconstruct(y)
+            fns[name] = DNNReconstructor(net_path, model).reconstruct
+            images = fns[name](y)
         else:
             lin = linear.get(prior) or LinearReconstructor(model, prior)
             linear[prior] = lin
@@ -122,11 +128,14 @@ def evaluate_methods(model: SensorModel, data: ReconDataset, methods=("tikhonov"
             if kind == "tikhonov":
                 images, lam_used = lin.solve(y, lam_k)
                 images = images.reshape(truth.shape)
+                fns[name] = lambda yy, lin=lin, lam_k=lam_k: lin.solve(yy, lam_k)[0].reshape(len(yy), *shape)
             else:
                 sim = simulator or SensorSimulator(model)
                 simulator = sim
                 res = GaussNewton(sim, prior).reconstruct(y[idx], lam_k, progress=progress)
                 images, lam_used = res.images, res.lam
+                fns[name] = lambda yy, sim=sim, prior=prior, lam_k=lam_k: GaussNewton(sim, prior).reconstruct(
+                    yy, lam_k).images
         seconds = time.perf_counter() - t0
         scores = evaluate_images(images, truth[idx], groups=counts[idx],
                                  data_range=float(truth.max() - truth.min()))
@@ -142,6 +151,10 @@ def evaluate_methods(model: SensorModel, data: ReconDataset, methods=("tikhonov"
         out["images"][name] = images
         out["indices"][name] = idx
         log.info("%s: %d frames in %.1f s, CC %.3f", name, len(idx), seconds, scores["mean"]["cc"])
+    if presses is not None:
+        from .presses import press_gap
+
+        out["presses"] = press_gap(model, presses, fns, press_y)
     return out
 
 
