@@ -1,8 +1,9 @@
 """``.npz`` files without pickles, written atomically; versioned ones carry JSON metadata beside the arrays.
 
 :func:`write_npz_atomic` is the one writer of every ``.npz`` the package produces (meshes, sensor models,
-datasets, networks). :func:`save_npz` / :func:`load_npz` add a ``format`` and ``format_version`` header, used by
-the reconstruction and gesture datasets; a reader accepts its own format at its version or older.
+datasets, networks), through :func:`write_atomic`, which other binary formats (the EIDORS ``.mat``) use too.
+:func:`save_npz` / :func:`load_npz` add a ``format`` and ``format_version`` header, used by the reconstruction
+and gesture datasets; a reader accepts its own format at its version or older.
 """
 
 from __future__ import annotations
@@ -12,13 +13,28 @@ import os
 import zipfile
 from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import TypeVar
+from typing import BinaryIO, TypeVar
 
 import numpy as np
 
 from .errors import ParameterError
 
 T = TypeVar("T")
+
+
+def write_atomic(path: str | Path, write: Callable[[BinaryIO], object]) -> Path:
+    """Call ``write(fh)`` on a per-process ``.part`` file beside ``path``, then rename it to ``path``: readers and
+    concurrent writers never see a half-written file, and a failure leaves neither the file nor the ``.part``."""
+    path = Path(path)
+    tmp = path.with_name(f"{path.name}.{os.getpid()}.part")
+    try:
+        with open(tmp, "wb") as fh:
+            write(fh)
+        tmp.replace(path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return path
 
 
 def write_npz_atomic(path: str | Path, arrays: Mapping[str, np.ndarray], *, compressed: bool = False) -> Path:
@@ -34,17 +50,8 @@ def write_npz_atomic(path: str | Path, arrays: Mapping[str, np.ndarray], *, comp
     compressed
         Deflate the members (``np.savez_compressed``).
     """
-    path = Path(path)
-    tmp = path.with_name(f"{path.name}.{os.getpid()}.part")
     save = np.savez_compressed if compressed else np.savez
-    try:
-        with open(tmp, "wb") as fh:
-            save(fh, allow_pickle=False, **arrays)
-        tmp.replace(path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    return path
+    return write_atomic(path, lambda fh: save(fh, allow_pickle=False, **arrays))
 
 
 def save_npz(path: str | Path, fmt: str, version: int, meta: Mapping, arrays: Mapping[str, np.ndarray]) -> Path:

@@ -19,13 +19,16 @@ complete-electrode ones; the 3D channels themselves are kept (pyEIT's tetrahedra
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
 import scipy.sparse as sp
 
+from ._npzfile import write_atomic, write_npz_atomic
 from .errors import ParameterError
-from .mesh.tetmesh import TET_FACES, electrode_name, face_keys
+from .mesh.facets import boundary_faces
+from .mesh.tetmesh import electrode_name
 from .sensor_model import SensorModel
 
 MM = 1e-3  # m per mm
@@ -34,12 +37,10 @@ FORMATS = ("npz", "eidors", "pyeit")
 PYEIT_TET_ORDER = [0, 2, 1, 3]
 
 
-def boundary_faces(tets: np.ndarray, n_nodes: int) -> np.ndarray:
-    """Triangles on the boundary of a tetrahedral mesh (faces of exactly one tet), shape ``(B, 3)``, outward
-    oriented (``TET_FACES`` order)."""
-    faces = tets[:, TET_FACES].reshape(-1, 3)
-    _, first, count = np.unique(face_keys(faces, n_nodes), return_index=True, return_counts=True, axis=0)
-    return faces[np.sort(first[count == 1])]
+def _off_electrode_node(mesh) -> int:
+    """The first node on no electrode (EIDORS' ``gnd_node``, pyEIT's ``ref_node``)."""
+    on = np.unique(np.concatenate([mesh.facets[electrode_name(k + 1)] for k in range(mesh.n_electrodes)]))
+    return int(np.setdiff1d(np.arange(mesh.n_nodes), on)[0])
 
 
 def _check_exact_electrodes(model: SensorModel) -> None:
@@ -91,15 +92,12 @@ def eidors_model(model: SensorModel) -> dict:
     for d, rows in enumerate(blocks):
         stim[0, d] = ("Amp", (model.protocol.drive_currents[d] * model.current_A)[:, None],
                       sp.csc_matrix(model.protocol.measure[rows]))
-    on_electrodes = np.unique(np.concatenate([mesh.facets[electrode_name(k + 1)] for k in range(n_e)]))
-    gnd = int(np.setdiff1d(np.arange(mesh.n_nodes), on_electrodes)[0])
-    import json
-
     from . import __version__
 
     fwd_model = {"type": "fwd_model", "name": f"latticeopt {model.design.describe()}",
                  "nodes": mesh.nodes_mm * MM, "elems": mesh.tets.astype(float) + 1,
-                 "boundary": boundary_faces(mesh.tets, mesh.n_nodes).astype(float) + 1, "gnd_node": float(gnd + 1),
+                 "boundary": boundary_faces(mesh.tets).astype(float) + 1,
+                 "gnd_node": float(_off_electrode_node(mesh) + 1),
                  "electrode": electrode, "stimulation": stim, "normalize_measurements": 0.0,
                  "solve": "eidors_default", "system_mat": "eidors_default", "jacobian": "eidors_default"}
     x0, x1, y0, y1 = model.extent_mm
@@ -116,11 +114,8 @@ def write_eidors_mat(model: SensorModel, path: str | Path) -> Path:
     """Write :func:`eidors_model` as a MATLAB v5 ``.mat`` file (``load`` in MATLAB or Octave); returns the path."""
     from scipy.io import savemat
 
-    path = Path(path)
-    tmp = path.with_name(path.name + ".part")
-    savemat(tmp, eidors_model(model), do_compression=True, oned_as="column")
-    tmp.replace(path)
-    return path
+    variables = eidors_model(model)  # before the file is opened: a refused model leaves no file behind
+    return write_atomic(path, lambda fh: savemat(fh, variables, do_compression=True, oned_as="column"))
 
 
 def pyeit_fields(model: SensorModel) -> dict:
@@ -145,25 +140,20 @@ def pyeit_fields(model: SensorModel) -> dict:
                              "(pyEIT's ex_mat and meas_mat)", model.protocol.name)
     point = ForwardModel(model.mesh, sigma_S_per_m=model.sigma_S_per_m, electrode_mode="point", current_A=1.0,
                          protocol=model.protocol)
-    el_pos = point.point_nodes
-    on_electrodes = np.unique(np.concatenate([model.mesh.facets[electrode_name(k + 1)]
-                                              for k in range(model.mesh.n_electrodes)]))
-    ref = int(np.setdiff1d(np.arange(model.mesh.n_nodes), on_electrodes)[0])
     n_e = model.mesh.n_electrodes
     keep = np.zeros((len(blocks), n_e), dtype=bool)
     for d, rows in enumerate(blocks):
         keep[d, mpairs[rows, 1]] = True  # pyEIT indexes keep_ba by M of [N, M]
     return {"node": model.mesh.nodes_mm * MM, "element": model.mesh.tets[:, PYEIT_TET_ORDER],
-            "perm": np.array(model.sigma_S_per_m), "el_pos": el_pos, "ref_node": ref, "ex_mat": pairs,
+            "perm": np.array(model.sigma_S_per_m), "el_pos": point.point_nodes,
+            "ref_node": _off_electrode_node(model.mesh), "ex_mat": pairs,
             "meas_mat": np.stack([mpairs[rows] for rows in blocks]), "keep_ba": keep.ravel(),
             "v_point": point.voltages, "v_cem": model.v_ref / model.current_A}
 
 
 def write_pyeit_npz(model: SensorModel, path: str | Path) -> Path:
     """Write :func:`pyeit_fields` as an ``.npz`` (numpy alone reads it); returns the path."""
-    from ._npzfile import write_npz_atomic
-
-    return write_npz_atomic(Path(path), pyeit_fields(model))
+    return write_npz_atomic(path, pyeit_fields(model))
 
 
 def to_pyeit(model: SensorModel | str | Path):

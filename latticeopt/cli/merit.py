@@ -46,8 +46,7 @@ def run_merit(args) -> int:
     if args.snr_db is not None:
         v.real("--snr-db", args.snr_db)
     v.integer("--jobs", args.jobs, lo=1, hi=256)
-    if args.prior not in PRIORS:
-        raise ParameterError("--prior", "one of " + ", ".join(PRIORS), args.prior)
+    v.choice("--prior", args.prior, PRIORS)
     lam = _lam(args.lam)
     if lam == "validation" or (not isinstance(lam, str) and not lam > 0):
         raise ParameterError("--lambda", "lcurve, gcv or a positive number", args.lam)

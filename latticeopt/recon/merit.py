@@ -168,14 +168,14 @@ def merit_map(model: SensorModel, targets: int = 7, diameter_mm: float | None = 
     xy = target_grid(model, m, d)
     sigma = np.stack([render_touches(np.array([[x, y, d, r]]), model.sigma0_S_per_m, model.n_pixels,
                                      model.extent_mm) for x, y in xy])
-    V = V_clean = SensorSimulator(model).voltages(sigma, jobs=jobs, progress=progress)
+    V = SensorSimulator(model).voltages(sigma, jobs=jobs, progress=progress)
+    y = y_clean = relative_change(V, model.v_ref)
     if snr_db is not None:
-        V = add_noise(V, v.real("snr_db", snr_db), np.random.default_rng(seed))
-    y = relative_change(V, model.v_ref)
+        y = relative_change(add_noise(V, v.real("snr_db", snr_db), np.random.default_rng(seed)), model.v_ref)
     images, _ = lin.solve(y, lam)
     images = images.reshape(len(xy), model.n_pixels, model.n_pixels)
     figs = greit_figures(images, xy, model.extent_mm, contrast=r - 1)
-    silent = np.max(np.abs(relative_change(V_clean, model.v_ref)), axis=1) < NO_RESPONSE
+    silent = np.max(np.abs(y_clean), axis=1) < NO_RESPONSE
     for a in figs.values():  # a target on silicone changes nothing: no image to score
         a[silent] = np.nan
     return MeritMap(targets_mm=xy, figures={k: a.reshape(m, m) for k, a in figs.items()}, images=images,

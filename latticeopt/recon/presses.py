@@ -14,6 +14,7 @@ from collections.abc import Callable
 import numpy as np
 
 from .. import _validate as v
+from ..learn.metrics import correlation_coefficient
 from ..sensor_model import SensorModel
 from .merit import greit_figures
 
@@ -94,10 +95,7 @@ def press_gap(model: SensorModel, presses: np.ndarray, reconstructors: dict[str,
     out = {}
     for name, fn in reconstructors.items():
         ip, idisc = fn(yp), fn(yd)
-        a, b = ip.reshape(len(p), -1), idisc.reshape(len(p), -1)
-        a, b = a - a.mean(1, keepdims=True), b - b.mean(1, keepdims=True)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            cc = (a * b).sum(1) / np.sqrt((a * a).sum(1) * (b * b).sum(1))
+        cc = correlation_coefficient(ip, idisc)
         out[name] = {"n": int(len(p)), "cc": float(np.nanmean(cc)) if np.isfinite(cc).any() else float("nan")}
         for label, images in (("press", ip), ("disc", idisc)):
             if not np.any(images):
