@@ -72,3 +72,7 @@ def test_merit_cli(model, tmp_path, capsys):
     assert "resolution" in capsys.readouterr().out and (tmp_path / "m.png").stat().st_size > 10_000
     assert main(["merit", str(path), "--targets", "1"]) == 2
     assert "--targets" in capsys.readouterr().err
+    assert main(["merit", str(path), "--seed", "-3"]) == 2
+    assert "--seed" in capsys.readouterr().err
+    assert main(["merit", str(tmp_path / "missing.npz")]) == 2
+    assert "MODEL" in capsys.readouterr().err

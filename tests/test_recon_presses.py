@@ -60,3 +60,6 @@ def test_recon_eval_reports_the_press_gap(model, tmp_path, capsys):
     assert gap["n"] == 2 and -1 <= gap["cc"] <= 1 and gap["press"]["resolution"] > 0
     assert main(["recon-eval", "--model", str(path), "--dataset", str(ds), "--presses", "-1"]) == 2
     assert "--presses" in capsys.readouterr().err
+    assert main(["recon-eval", "--model", str(path), "--dataset", str(ds), "--presses", "1", "--press-seed",
+                 "-1"]) == 2
+    assert "--press-seed" in capsys.readouterr().err

@@ -46,11 +46,12 @@ def run_merit(args) -> int:
     if args.snr_db is not None:
         v.real("--snr-db", args.snr_db)
     v.integer("--jobs", args.jobs, lo=1, hi=256)
+    v.integer("--seed", args.seed, lo=0)
     v.choice("--prior", args.prior, PRIORS)
     lam = _lam(args.lam)
     if lam == "validation" or (not isinstance(lam, str) and not lam > 0):
         raise ParameterError("--lambda", "lcurve, gcv or a positive number", args.lam)
-    model = _load_model(args.model)
+    model = _load_model(args.model, "MODEL")
     t0 = time.perf_counter()
     try:
         res = merit_map(model, args.targets, args.diameter, args.ratio, args.prior, lam, args.snr_db, args.jobs,

@@ -45,15 +45,15 @@ def _add_method_args(p, multi_prior: bool = False) -> None:
         g.add_argument("--max-iter", type=int, default=6, help="gn: iterations; default 6")
 
 
-def _load_model(path):
+def _load_model(path, flag: str = "--model"):
     from ..errors import ParameterError
     from ..sensor_model import SensorModelError, load_sensor_model
 
-    check_input_file("--model", path, (".npz",), "an existing sensor-model file (latticeopt export)")
+    check_input_file(flag, path, (".npz",), "an existing sensor-model file (latticeopt export)")
     try:
         return load_sensor_model(path)
     except SensorModelError as exc:
-        raise ParameterError("--model", "a sensor-model file written by 'latticeopt export'", str(exc)) from None
+        raise ParameterError(flag, "a sensor-model file written by 'latticeopt export'", str(exc)) from None
 
 
 def _lam(text: str):

@@ -202,6 +202,7 @@ def run_eval(args) -> int:
     png = check_output_path("--figure", args.figure, suffixes=(".png",))
     methods, priors = _check_eval_args(args)
     v.integer("--presses", args.presses, lo=0, hi=10_000)
+    v.integer("--press-seed", args.press_seed, lo=0)
     model = _load_model(args.model)
     data = ReconDataset.load(args.dataset)
     presses = press_y = None
