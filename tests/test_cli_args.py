@@ -166,7 +166,8 @@ def test_complex_frames_are_refused(files):
     ("--epochs", "0", ""), ("--batch-size", "0", ""), ("--lr", "nan", ""), ("--lr", "0", ""),
     ("--patience", "0", ""), ("--threads", "0", ""), ("--dataset", "data.txt", ".npz"),
     ("--per-count", "5", ">= 6"), ("--per-count", "0", ">= 6"), ("--touch-counts", "0,1", ""),
-    ("--seed", "-1", ""), ("--jobs", "0", ""),
+    ("--seed", "-1", ""), ("--jobs", "0", ""), ("--presses", "-1", ""), ("--presses", "10001", "<= 10000"),
+    ("--press-seed", "-1", ""),
 ])
 def test_recon_train_arguments(flag, value, text, files, tmp_path):
     _rejected(["recon-train", "--model", files.sensor, "-o", tmp_path / "n.npz", f"{flag}={value}"], files, flag,

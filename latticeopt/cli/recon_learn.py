@@ -24,6 +24,13 @@ def register(sub) -> None:
     g.add_argument("--patience", type=int, default=15, help="early stop after this many epochs without "
                    "improvement; default 15")
     g.add_argument("--no-augment", action="store_true", help="train on the clean training part only")
+    g.add_argument("--presses", type=int, default=0,
+                   help="add this many random single presses, simulated by the coupled model of the exported "
+                        "design (seconds to minutes each), to the training part, each with its footprint disc as "
+                        "target; stored in --dataset, so a re-run reads them; default 0 (discs only, even if the "
+                        "dataset holds presses)")
+    g.add_argument("--press-seed", type=int, default=1,
+                   help="seed of the training presses; default 1 (recon-eval's presses default to seed 0)")
     g.add_argument("--threads", type=int, default=None, help="torch threads; default torch's")
     t.add_argument("-o", "--output", required=True, help="network file (.npz)")
     t.add_argument("--json", action="store_true", help="print one JSON object")
@@ -70,6 +77,7 @@ def run_train(args) -> int:
     model = _load_model(args.model)
     t0 = time.perf_counter()
     data = _dataset(args, model, DatasetConfig, ReconDataset, generate_dataset)
+    data = _mix_presses(args, model, data)
     t_data = time.perf_counter() - t0
     cfg = ReconTrainConfig(epochs=args.epochs, batch_size=args.batch_size, learning_rate=args.lr,
                            patience=args.patience, seed=args.seed, num_threads=args.threads,
@@ -77,14 +85,17 @@ def run_train(args) -> int:
     net, result, meta = train_reconstructor(data, model, cfg)
     save_reconstructor(out, net, meta)
     scores = evaluate_methods(model, data, ("dnn",), net_path=out)["methods"]["dnn"]
-    info = {"output": str(out), "samples": len(data), "n_train_augmented": meta["n_train"],
+    info = {"output": str(out), "samples": len(data), "train_presses": meta["train_presses"],
+            "n_train_augmented": meta["n_train"],
             "dataset_seconds": t_data, "train": result.to_dict(), "test_dnn": scores,
             "seconds": time.perf_counter() - t0}
     if args.json:
         emit_json(info)
         return 0
-    print(f"dataset: {len(data)} samples ({len(data.train)} train -> {meta['n_train']} augmented, {len(data.val)} "
-          f"validation, {len(data.test)} test) in {t_data:.1f} s")
+    presses = meta["train_presses"]
+    mixed = f" + {presses['solved']} coupled presses" if presses else ""
+    print(f"dataset: {len(data)} samples ({len(data.train)} train{mixed} -> {meta['n_train']} augmented, "
+          f"{len(data.val)} validation, {len(data.test)} test) in {t_data:.1f} s")
     print(f"training: {result.epochs_run} epochs, {result.seconds_per_epoch:.2f} s/epoch, best epoch "
           f"{result.best_epoch} (validation MSE {result.best_val_loss:.4g})")
     _print_scores({"dnn": scores})
@@ -116,6 +127,8 @@ def _check_train_args(args) -> None:
         v.integer("--threads", args.threads, lo=1)
     v.integer("--seed", args.seed, lo=0)
     v.integer("--jobs", args.jobs, lo=1)
+    v.integer("--presses", args.presses, lo=0, hi=10_000)
+    v.integer("--press-seed", args.press_seed, lo=0)
     counts = _ints("--touch-counts", args.touch_counts)
     if not counts or any(not 1 <= c <= 12 for c in counts):
         raise ParameterError("--touch-counts", "a comma list of touch counts 1..12", args.touch_counts)
@@ -149,6 +162,22 @@ def _dataset(args, model, DatasetConfig, ReconDataset, generate_dataset):
     if args.dataset:
         data.save(parse_output(args.dataset, (".npz",), "--dataset"))
     return data
+
+
+def _mix_presses(args, model, data):
+    """``data`` with ``--presses`` coupled presses in its training part; new ones are written to ``--dataset``."""
+    import sys
+
+    from ..recon.presses import with_presses
+
+    progress = not args.json
+    if args.presses and progress:
+        print(f"{args.presses} coupled presses (seed {args.press_seed}) for the training part: read from the "
+              "dataset if it holds them, else one coupled solve each", file=sys.stderr, flush=True)
+    mixed = with_presses(data, model, args.presses, args.press_seed, progress=progress)
+    if args.presses and mixed is not data and args.dataset:
+        mixed.save(parse_output(args.dataset, (".npz",), "--dataset"))
+    return mixed
 
 
 def _print_scores(methods: dict) -> None:
@@ -194,6 +223,17 @@ def _check_eval_args(args) -> tuple[tuple[str, ...], tuple[str, ...]]:
     return methods, priors
 
 
+def _check_press_seed(args, model) -> None:
+    """Refuse to score the network on presses of the seed it was trained on (it would have seen them)."""
+    from ..errors import ParameterError
+    from ..recon.dnn import DNNReconstructor
+
+    trained = DNNReconstructor(args.net, model).metadata.get("train_presses")
+    if trained and trained.get("seed") == args.press_seed:
+        raise ParameterError("--press-seed", f"a seed other than {args.press_seed}, the seed of the presses the "
+                             "network was trained on", args.press_seed)
+
+
 def run_eval(args) -> int:
     from .. import _validate as v
     from ..recon.dataset import ReconDataset
@@ -206,6 +246,8 @@ def run_eval(args) -> int:
     model = _load_model(args.model)
     data = ReconDataset.load(args.dataset)
     presses = press_y = None
+    if args.presses and "dnn" in methods and args.net is not None:
+        _check_press_seed(args, model)
     if args.presses:
         from ..recon.presses import press_frames, random_presses
 

@@ -14,6 +14,9 @@ the identity kept clean and the seven others given Gaussian noise of SNR 35, 40,
 (280 000 training samples at full size). Noise is white on the absolute voltages with
 ``std = rms(V) 10^(-SNR/20)`` over the frame's 208 values.
 
+Optionally the training part also holds single presses simulated by the coupled model (:class:`PressSamples`,
+added by :func:`latticeopt.recon.presses.with_presses`), stored in the same file so they are simulated once.
+
 Network inputs and classical reconstructions use relative changes ``y = (V - V_ref) / V_ref``; images are the
 normalized change ``(sigma - sigma0) / sigma0`` (0 = background, -0.95 to +1 inside touches).
 """
@@ -37,7 +40,8 @@ log = logging.getLogger(__name__)
 
 PAPER_SNR_DB = (35.0, 40.0, 45.0, 50.0, 55.0, 60.0, 65.0)
 DATASET_FORMAT = "latticeopt-recon-dataset"
-DATASET_VERSION = 1
+# version 2 added the optional press samples (press_*); version 1 files still load, without them
+DATASET_VERSION = 2
 _SUB = 4  # sub-samples per pixel side for the coverage of a circle
 
 
@@ -147,6 +151,41 @@ def sample_touches(rng: np.random.Generator, count: int, config: DatasetConfig, 
 
 
 @dataclass(frozen=True, eq=False)
+class PressSamples:
+    """Single presses simulated by the coupled model, mixed into the training part only.
+
+    Attributes
+    ----------
+    presses : ndarray, shape (k, 4)
+        ``(x_mm, y_mm, radius_mm, depth_mm)`` of each press (:func:`latticeopt.recon.presses.random_presses`).
+    y : ndarray, shape (k, n_rows)
+        Relative voltage changes ``V / V_ref - 1`` of each press; NaN rows (failed solves) are not trained on.
+    images : ndarray, shape (k, n_pix, n_pix), float32
+        Target images: normalized change of each punch's footprint disc.
+    seed : int
+        Seed the presses were drawn with.
+    """
+
+    presses: np.ndarray
+    y: np.ndarray
+    images: np.ndarray
+    seed: int
+
+    def __post_init__(self) -> None:
+        k = len(self.presses)
+        if np.shape(self.presses) != (k, 4) or np.ndim(self.y) != 2 or len(self.y) != k \
+                or np.ndim(self.images) != 3 or len(self.images) != k:
+            raise ParameterError("presses", "presses (k, 4) with frames (k, n_rows) and images (k, n, n)",
+                                 f"shapes {np.shape(self.presses)}, {np.shape(self.y)}, {np.shape(self.images)}")
+        object.__setattr__(self, "seed", v.integer("press_seed", self.seed, lo=0))
+
+    @property
+    def solved(self) -> np.ndarray:
+        """Mask of the presses whose frame is finite, shape (k,)."""
+        return np.all(np.isfinite(self.y), axis=1)
+
+
+@dataclass(frozen=True, eq=False)
 class ReconDataset:
     """Simulated samples (unaugmented) with their split.
 
@@ -164,6 +203,8 @@ class ReconDataset:
     config : DatasetConfig
     model_fingerprint : str
         :attr:`SensorModel.fingerprint` of the model that simulated the voltages.
+    presses : PressSamples or None
+        Coupled presses added to the training part (not counted in ``len``).
     """
 
     voltages: np.ndarray
@@ -175,6 +216,7 @@ class ReconDataset:
     test: np.ndarray
     config: DatasetConfig
     model_fingerprint: str
+    presses: PressSamples | None = None
 
     def __len__(self) -> int:
         return len(self.voltages)
@@ -185,17 +227,24 @@ class ReconDataset:
                                  f"{model.fingerprint})", f"data of model {self.model_fingerprint}")
 
     def save(self, path: str | Path) -> Path:
-        return save_npz(path, DATASET_FORMAT, DATASET_VERSION,
-                        {"config": asdict(self.config), "model_fingerprint": self.model_fingerprint},
-                        {"voltages": self.voltages, "images": self.images, "touches": self.touches,
-                         "n_touches": self.n_touches, "train": self.train, "val": self.val, "test": self.test})
+        meta = {"config": asdict(self.config), "model_fingerprint": self.model_fingerprint}
+        arrays = {"voltages": self.voltages, "images": self.images, "touches": self.touches,
+                  "n_touches": self.n_touches, "train": self.train, "val": self.val, "test": self.test}
+        if self.presses is not None:
+            p = self.presses
+            meta["press_seed"] = p.seed
+            arrays.update(press_params=p.presses, press_y=p.y, press_images=p.images)
+        return save_npz(path, DATASET_FORMAT, DATASET_VERSION, meta, arrays)
 
     @classmethod
     def load(cls, path: str | Path) -> ReconDataset:
         def build(meta, z):
             cfg = DatasetConfig(**{k: tuple(x) if isinstance(x, list) else x for k, x in meta["config"].items()})
+            presses = None
+            if "press_params" in z.files:
+                presses = PressSamples(z["press_params"], z["press_y"], z["press_images"], meta["press_seed"])
             return cls(z["voltages"], z["images"], z["touches"], z["n_touches"], z["train"], z["val"], z["test"],
-                       cfg, meta["model_fingerprint"])
+                       cfg, meta["model_fingerprint"], presses)
 
         return load_npz(path, DATASET_FORMAT, DATASET_VERSION, build,
                         f"a dataset file written by latticeopt recon-train ({DATASET_FORMAT} version <= "
@@ -249,8 +298,13 @@ def generate_dataset(model: SensorModel, config: DatasetConfig | None = None, *,
     sim = simulator
     V = sim.voltages(sigma, jobs=jobs, progress=progress)
     train, val, test = stratified_split(counts, cfg.split, cfg.seed)
-    images = ((sigma - s0) / s0).astype(np.float32)
+    images = normalized_change(sigma, s0)
     return ReconDataset(V, images, touches, counts, train, val, test, cfg, model.fingerprint)
+
+
+def normalized_change(sigma: np.ndarray, sigma0: float) -> np.ndarray:
+    """Image target ``(sigma - sigma0) / sigma0`` of conductivity images ``(..., n, n)`` (S/m), float32."""
+    return ((np.asarray(sigma) - sigma0) / sigma0).astype(np.float32)
 
 
 def relative_change(V: np.ndarray, v_ref: np.ndarray) -> np.ndarray:
@@ -285,17 +339,29 @@ def training_arrays(data: ReconDataset, model: SensorModel, snr_db=PAPER_SNR_DB,
 
     Sample ``i`` of the training part gives rows ``8 i .. 8 i + 7``: the eight symmetries of
     :func:`~latticeopt.recon.augment.square_symmetries` in order, the first (identity) clean, the others with
-    noise of ``snr_db[0]``, ``snr_db[1]``, ... (seven values). ``augment=False`` returns the clean training
-    part unaugmented.
+    noise of ``snr_db[0]``, ``snr_db[1]``, ... (seven values). The solved presses of ``data.presses`` follow
+    the disc samples, augmented alike; their noise has a stream of its own, so the disc rows are the same with
+    or without presses. ``augment=False`` returns the clean training part (and presses) unaugmented.
     """
     y, img, _ = part_arrays(data, model, "train")
+    parts = [(y, img)]
+    if data.presses is not None:
+        ok = data.presses.solved
+        parts.append((data.presses.y[ok], data.presses.images[ok].astype(np.float32)))
     if not augment:
-        return y.astype(np.float32), img
+        return (np.concatenate([p[0] for p in parts]).astype(np.float32), np.concatenate([p[1] for p in parts]))
     syms = square_symmetries(model.design, model.protocol, model.n_pixels)
     snr = tuple(float(s) for s in snr_db)
     if len(snr) != len(syms) - 1:
         raise ParameterError("snr_db", f"{len(syms) - 1} SNR values (one per non-identity symmetry)", snr_db)
-    rng = np.random.default_rng([data.config.seed, 2])
+    out = [_augment(yp, ip, model, syms, snr, np.random.default_rng([data.config.seed, 2, *([j] if j else [])]))
+           for j, (yp, ip) in enumerate(parts)]
+    return np.concatenate([o[0] for o in out]), np.concatenate([o[1] for o in out])
+
+
+def _augment(y: np.ndarray, img: np.ndarray, model: SensorModel, syms, snr: tuple, rng: np.random.Generator
+             ) -> tuple[np.ndarray, np.ndarray]:
+    """Eight-fold augmentation of ``y (k, n_rows)``, ``img (k, n, n)`` (see :func:`training_arrays`)."""
     k, m = y.shape
     y_out = np.empty((k, len(syms), m), dtype=np.float32)
     img_out = np.empty((k, len(syms)) + img.shape[1:], dtype=np.float32)

@@ -3,7 +3,8 @@
 The network (:class:`latticeopt.learn.ReconNet`, MLP encoder and CNN decoder after dong2025data) maps relative
 changes ``y = (V - V_ref) / V_ref`` of all rows (208) to the normalized change image ``(sigma - sigma0) /
 sigma0`` (48 x 48). Training uses :func:`latticeopt.learn.train_model` (Adam, MSE, best validation epoch) on
-:func:`~latticeopt.recon.dataset.training_arrays` (eight-fold augmented, noisy) and the clean validation part.
+:func:`~latticeopt.recon.dataset.training_arrays` (eight-fold augmented, noisy; with the dataset's coupled presses
+if it holds any) and the clean validation part.
 The saved network file (:func:`latticeopt.learn.save_model`, no pickles) records the sensor model's
 fingerprint so it is never applied to frames of another sensor model by mistake.
 """
@@ -85,8 +86,9 @@ def train_reconstructor(data: ReconDataset, model: SensorModel, config: ReconTra
 
     cfg = config or ReconTrainConfig()
     data.check_model(model)
+    n_presses = 0 if data.presses is None else int(data.presses.solved.sum())
     if cfg.progress:  # the augmentation takes seconds before the epoch bar appears
-        print(f"preparing {len(data.train)} training samples"
+        print(f"preparing {len(data.train)} training samples{f' + {n_presses} presses' if n_presses else ''}"
               f"{' x 8 (symmetries with noise)' if cfg.augment else ''}", file=sys.stderr, flush=True)
     x_tr, y_tr = training_arrays(data, model, cfg.snr_db, augment=cfg.augment)
     x_va, y_va, _ = part_arrays(data, model, "val")
@@ -103,7 +105,9 @@ def train_reconstructor(data: ReconDataset, model: SensorModel, config: ReconTra
             "n_pixels": model.n_pixels, "sigma0_S_per_m": model.sigma0_S_per_m,
             "train_config": {k: list(x) if isinstance(x, tuple) else x for k, x in asdict(cfg).items()},
             "train_result": result.to_dict(), "n_train": int(len(x_tr)), "n_val": int(len(x_va)),
-            "dataset": asdict(data.config)}
+            "dataset": asdict(data.config),
+            "train_presses": None if data.presses is None else {"n": len(data.presses.presses),
+                                                                 "solved": n_presses, "seed": data.presses.seed}}
     return net, result, meta
 
 
