@@ -31,7 +31,9 @@ class Assessment:
 
     ``random_v``/``probe_v`` hold V_rel per phantom in phantom order (NaN where a phantom failed); ``score`` is
     NaN when the design could not be scored, which includes any failed phantom (infeasible). ``computed``
-    counts phantoms computed now (the rest came from the store).
+    counts phantoms computed now (the rest came from the store). With ``image_cc``, ``probe_cc`` holds each
+    probe's image correlation and ``image_figures`` the mean GREIT position figures (mm) over the probes
+    (:mod:`latticeopt.study.imaging`).
     """
 
     score: float
@@ -47,6 +49,8 @@ class Assessment:
     design_key: str = ""
     random_v: tuple[float, ...] = ()
     probe_v: tuple[float, ...] = ()
+    probe_cc: tuple[float, ...] = ()
+    image_figures: dict = field(default_factory=dict)
 
 
 @dataclass(frozen=True)

@@ -21,12 +21,14 @@ from .problem import Optimization, Problem
 
 __all__ = ["load_categories", "load_optimization", "optimization_from_dict", "read_study_table"]
 
-_KEYS = ("algorithm", "local_algorithm", "objective", "quantile", "uniformity", "bootstrap", "constraints",
+_KEYS = ("algorithm", "local_algorithm", "objective", "quantile", "uniformity", "image", "bootstrap", "constraints",
          "constraint_method", "penalty_weight", "max_evals", "max_time_s", "xtol_abs_mm", "xtol_rel", "ftol_abs",
          "ftol_rel", "initial_step", "starts", "seed", "variables")
 _VAR_KEYS = ("lower", "upper", "start")
 _CONSTRAINT_KEYS = ("min_channel_mm", "min_island_mm", "min_substrate_mm", "max_hydrogel_stretch")
 _UNIFORMITY_KEYS = ("grid", "radius_mm", "depth_mm")
+#: ``[optimize.image]`` key -> :class:`Objective` field (the image_cc reconstructions).
+_IMAGE_KEYS = {"prior": "image_prior", "lambda": "image_lambda"}
 
 
 @dataclass(frozen=True)
@@ -89,12 +91,15 @@ def _objective(nm: _Namer, tab: dict) -> Objective:
     else:
         weights = nm.known(raw, list(TERMS), "optimize.objective")
     uni = nm.known(tab.get("uniformity", {}), _UNIFORMITY_KEYS, "optimize.uniformity")
+    img = nm.known(tab.get("image", {}), list(_IMAGE_KEYS), "optimize.image")
     kw = {"weights": tuple(weights.items()), "quantile": tab.get("quantile", 0.1),
           "probe_grid": uni.get("grid", 3), "probe_radius_mm": uni.get("radius_mm", 7.5),
-          "probe_depth_mm": uni.get("depth_mm", 3.0), "bootstrap": tab.get("bootstrap", 1000)}
+          "probe_depth_mm": uni.get("depth_mm", 3.0), "bootstrap": tab.get("bootstrap", 1000),
+          **{_IMAGE_KEYS[k]: val for k, val in img.items()}}
     keys = {"quantile": "optimize.quantile", "probe_grid": "optimize.uniformity.grid",
             "bootstrap": "optimize.bootstrap",
-            "probe_radius_mm": "optimize.uniformity.radius_mm", "probe_depth_mm": "optimize.uniformity.depth_mm"}
+            "probe_radius_mm": "optimize.uniformity.radius_mm", "probe_depth_mm": "optimize.uniformity.depth_mm",
+            **{field: f"optimize.image.{k}" for k, field in _IMAGE_KEYS.items()}}
     try:
         return Objective(**kw)
     except ParameterError as exc:
@@ -130,8 +135,8 @@ def optimization_from_dict(raw: Mapping, *, source: str = "<dict>", overridden: 
         raise ParameterError(nm(f"optimize.constraints.{name}"), getattr(exc, "expected", str(exc)),
                              getattr(exc, "got", ckeys)) from None
     objective = _objective(nm, tab)
-    rest = {k: tab[k] for k in _KEYS if k in tab and k not in ("objective", "quantile", "uniformity", "bootstrap",
-                                                                  "constraints", "variables")}
+    rest = {k: tab[k] for k in _KEYS if k in tab and k not in ("objective", "quantile", "uniformity", "image",
+                                                                  "bootstrap", "constraints", "variables")}
     try:
         config = OptimizeConfig(variables=variables, objective=objective, constraints=constraints, **rest)
         problem = Problem.build(study.designs[0], variables, constraints)

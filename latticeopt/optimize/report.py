@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from .._jsonout import jsonable
+from ..study.imaging import FIGURES
 from ..study.report import write_csv
 from ..study.store import STORE_NAME, ResultStore
 from .problem import effective_bounds_text
@@ -36,6 +37,9 @@ def history_rows(result) -> list[dict]:
         row = {"eval": s.index, "start": s.start, **s.x, "score": s.score, "score_se": s.se}
         for k in terms:
             row[f"term_{k}"] = a.terms.get(k, math.nan) if a is not None else math.nan
+        if result.optimization.config.objective.needs_images:  # reported beside image_cc, never scored
+            for k in FIGURES:
+                row[f"image_{k}"] = a.image_figures.get(k, math.nan) if a is not None else math.nan
         row.update(v_rel_mean=a.v_rel_mean if a else math.nan, v_rel_se=a.v_rel_se if a else math.nan,
                    n_ok=a.n_ok if a else 0, n_failed=a.n_failed if a else 0,
                    max_stretch=a.max_stretch if a and a.max_stretch is not None else math.nan)
@@ -188,8 +192,13 @@ def report_lines(result) -> list[str]:
         if obj.weights == (("mean", 1.0),):
             return (f"{_fmt_x(s.x)}: mean V_rel {a.v_rel_mean:.5g} ± {a.v_rel_se:.2g} (SE over phantoms, "
                     f"n = {a.n_ok}{failed})")
-        return (f"{_fmt_x(s.x)}: score {s.score:.5g} ± {s.se:.2g}, mean V_rel {a.v_rel_mean:.5g} ± {a.v_rel_se:.2g} "
-                f"(SE over phantoms, n = {a.n_ok}{failed})")
+        image = ""
+        if obj.needs_images:
+            pe, off = (a.image_figures.get(k, math.nan) for k in ("position_error_mm", "position_offset_mm"))
+            image = (f", image CC {a.terms.get('image_cc', math.nan):.4g}, mean position error {pe:.3g} mm "
+                     f"(offset {off:.3g} mm) over the probes")
+        return (f"{_fmt_x(s.x)}: score {s.score:.5g} ± {s.se:.2g}{image}, mean V_rel {a.v_rel_mean:.5g} ± "
+                f"{a.v_rel_se:.2g} (SE over phantoms, n = {a.n_ok}{failed})")
 
     if result.optimum.start_step is not None and result.optimum.start_step.assessment is not None:
         lines.append("start:   " + describe(result.optimum.start_step))
@@ -239,6 +248,8 @@ def write_optimization_outputs(result) -> tuple[dict, list[str]]:
                "optimum": None if best is None else {"x": best.x, "score": best.score, "se": best.se,
                                                      "v_rel_mean": best.assessment.v_rel_mean,
                                                      "v_rel_se": best.assessment.v_rel_se, "n": best.assessment.n_ok,
+                                                     "terms": best.assessment.terms,
+                                                     "image_figures": best.assessment.image_figures,
                                                      "call": best.index, "design_key": best.assessment.design_key},
                "improvement_over_start": None if result.paired is None else dict(zip(("diff", "se"), result.paired)),
                "starts": [{"x0": s.x0, "result": s.result, "calls": s.evaluations, "message": s.message}

@@ -14,6 +14,7 @@ import numpy as np
 
 from ..design import LatticeDesign
 from ..errors import AllFailedError, LatticeoptError, ParameterError
+from ..study.imaging import FIGURES, ReconstructorCache, probe_image_figures, probe_presses
 from ..study.objectives import Objective
 from ..study.phantoms import Phantom
 from ..study.settings import EvalSettings
@@ -31,15 +32,37 @@ def _mean_se(values: Sequence[float]) -> tuple[float, float]:
     return float(x.mean()), float(x.std(ddof=1) / math.sqrt(x.size)) if x.size > 1 else math.nan
 
 
+def _image_figures(design: LatticeDesign, evs, probes: Sequence[Phantom], objective: Objective,
+                   settings: EvalSettings, images: ReconstructorCache | None) -> tuple[tuple, dict]:
+    """Per-probe image correlations and the mean position figures of ``evs`` (the probes' evaluations)."""
+    if not objective.needs_images:
+        return (), {}
+    if any(e.ok and e.voltages is None for e in evs):
+        raise LatticeoptError(f"model {settings.model} returned no 'voltages', which optimize.objective.image_cc "
+                              "needs (the probes' images are reconstructed from them)")
+    volts = [e.voltages if e.ok else None for e in evs]
+    if any(vv is not None for vv in volts):
+        cache = images if images is not None else ReconstructorCache()
+        model, lin = cache.get(design, settings, objective.image_prior)
+        figs = probe_image_figures(model, lin, volts, probe_presses(probes), objective.image_lambda)
+    else:  # every probe failed: nothing to reconstruct, and the score is NaN anyway
+        figs = {k: np.full(len(evs), np.nan) for k in ("cc", *FIGURES)}
+    means = {k: float(np.mean(figs[k])) if np.isfinite(figs[k]).all() else math.nan for k in FIGURES}
+    return tuple(float(c) for c in figs["cc"]), means
+
+
 def assess_design(design: LatticeDesign, *, phantoms: Sequence[Phantom], probes: Sequence[Phantom],
                   objective: Objective, settings: EvalSettings, out_dir: str | Path, evaluate: Callable,
-                  need_stretch: bool = False, jobs: int = 1, backend: str = "local", scheduler=None) -> Assessment:
+                  need_stretch: bool = False, jobs: int = 1, backend: str = "local", scheduler=None,
+                  images: ReconstructorCache | None = None) -> Assessment:
     """Evaluate ``design`` on every phantom (and probe) through the store and score it.
 
     Phantoms already stored under ``settings.key`` are read, the rest computed (``jobs`` in parallel) and
     stored as they finish (:func:`latticeopt.study.sweep.evaluate_designs`). A failed phantom makes the score NaN
     (the design is infeasible, :mod:`latticeopt.study.objectives`); ``n_failed`` counts them, and ``v_rel_mean`` /
-    ``max_stretch`` describe the successful ones only (for the history, never for ranking).
+    ``max_stretch`` describe the successful ones only (for the history, never for ranking). With ``image_cc``
+    the probes' stored voltages are reconstructed with the design's Jacobian from ``images`` (a per-run cache;
+    ``None`` builds it afresh), :mod:`latticeopt.study.imaging`.
     """
     from ..study.sweep import evaluate_designs
 
@@ -49,7 +72,8 @@ def assess_design(design: LatticeDesign, *, phantoms: Sequence[Phantom], probes:
     n = len(phantoms)
     vals = [e.v_rel if e.ok else math.nan for e in evs]
     rnd, prb = np.asarray(vals[:n]), np.asarray(vals[n:])
-    value = objective.evaluate(rnd, prb)  # NaN (infeasible) if any phantom failed
+    cc, figures = _image_figures(design, evs[n:], probes, objective, settings, images)
+    value = objective.evaluate(rnd, prb, cc)  # NaN (infeasible) if any phantom failed
     mean, se = _mean_se(rnd[np.isfinite(rnd)])
     stretch = None
     if need_stretch:
@@ -62,7 +86,8 @@ def assess_design(design: LatticeDesign, *, phantoms: Sequence[Phantom], probes:
     return Assessment(score=value.score, se=value.se, terms=value.terms, v_rel_mean=mean, v_rel_se=se, n_ok=n_ok,
                       n_failed=len(evs) - n_ok, max_stretch=stretch, computed=computed,
                       seconds=time.perf_counter() - t0, design_key=design.content_hash(),
-                      random_v=tuple(float(x) for x in rnd), probe_v=tuple(float(x) for x in prb))
+                      random_v=tuple(float(x) for x in rnd), probe_v=tuple(float(x) for x in prb), probe_cc=cc,
+                      image_figures=figures)
 
 
 # -- running a study ------------------------------------------------------------------------------------------
@@ -158,15 +183,20 @@ def run_optimization(opt: Optimization, evaluate: Callable | None = None, *, job
             assess_design, phantoms=study.phantoms, probes=opt.probes, objective=opt.config.objective,
             settings=settings, out_dir=out, evaluate=evaluate,
             need_stretch=opt.config.constraints.max_hydrogel_stretch is not None, jobs=jobs, backend=backend,
-            scheduler=scheduler)
+            scheduler=scheduler, images=ReconstructorCache())
         optimum = minimize(opt.problem, opt.config, assess, callback=callback)
     paired = None
     if optimum.best is not None and optimum.start_step is not None and optimum.start_step.assessment is not None:
         a, b = optimum.best.assessment, optimum.start_step.assessment
         ra, rb, pa, pb = (np.asarray(x) for x in (a.random_v, b.random_v, a.probe_v, b.probe_v))
+        ca, cb = (np.asarray(x, dtype=float) for x in (a.probe_cc, b.probe_cc))
         keep_r, keep_p = np.isfinite(ra) & np.isfinite(rb), np.isfinite(pa) & np.isfinite(pb)
+        if ca.size:
+            keep_p &= np.isfinite(ca) & np.isfinite(cb)
+            ca, cb = ca[keep_p], cb[keep_p]
         if keep_r.any():
-            paired = opt.config.objective.paired_difference((ra[keep_r], pa[keep_p]), (rb[keep_r], pb[keep_p]))
+            paired = opt.config.objective.paired_difference((ra[keep_r], pa[keep_p], ca),
+                                                            (rb[keep_r], pb[keep_p], cb))
     result = OptimizationResult(optimization=opt, settings=settings, out_dir=out, optimum=optimum,
                                 seconds=time.perf_counter() - t0, paired=paired)
     if outputs:

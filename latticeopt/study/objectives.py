@@ -16,13 +16,21 @@ function of the design (no sampling noise along the optimizer's path). The terms
     sensor (:meth:`Objective.probes`). 1 means every location reads the same V_rel; it is 1 - CV, so it can
     be negative when the spread exceeds the mean. A separate probe set is used, not the random phantoms binned
     by position, because random touches differ in depth, radius and count as well as in location.
+``image_cc``
+    What a user finally sees is an image: the mean Pearson correlation between the one-step Tikhonov image of
+    every probe press (the same probe grid) and its true footprint, a disc of the punch radius at the press
+    centre (:mod:`latticeopt.study.imaging`, which also reports the mean GREIT position error in mm beside it).
+    The images use the design's own pixel Jacobian at the study's mesh settings, the prior ``image_prior``
+    and a *fixed* ``lambda = image_lambda x`` the largest eigenvalue of that design's ``A P^-1 A^T``; why fixed
+    and why relative: :mod:`latticeopt.study.imaging`. 1 is a perfect image (up to an affine map of its values).
 
 The score is ``sum(weight_k * term_k)`` with weights >= 0 (the terms have different scales: mean V_rel is a few
-percent while uniformity is near 1, so choose weights with that in mind). Its standard error over the phantoms:
-for ``mean`` alone the usual ``std(ddof=1) / sqrt(n)``; otherwise a bootstrap over phantoms (random phantoms and
-probes resampled independently, a fixed seed, :attr:`Objective.bootstrap` resamples) — deterministic, so a
-resumed run reports the same numbers. Paired differences between two designs resample the *same* phantom
-indices for both, which is what common random numbers buy.
+percent while uniformity and image_cc are near 1, so choose weights with that in mind). Its standard error over
+the phantoms: for ``mean`` alone the usual ``std(ddof=1) / sqrt(n)``; otherwise a bootstrap over phantoms (random
+phantoms and probes resampled independently, a probe's V_rel and image correlation together, a fixed seed,
+:attr:`Objective.bootstrap` resamples) — deterministic, so a resumed run reports the same numbers. Paired
+differences between two designs resample the *same* phantom indices for both, which is what common random
+numbers buy.
 
 Failed phantoms. A design is scored on *all* its phantoms or not at all: a failed phantom (NaN) makes the score
 NaN, which the optimizer treats as infeasible. Scoring a design on its successes only would compare designs over
@@ -44,12 +52,15 @@ from ..errors import ParameterError
 from ..touches import Touch
 from .phantoms import Phantom
 
-__all__ = ["TERMS", "Objective", "ObjectiveValue"]
+__all__ = ["PROBE_TERMS", "TERMS", "Objective", "ObjectiveValue"]
 
 #: The objective terms, each with a one-line meaning (documentation and error messages).
 TERMS = {"mean": "mean V_rel over the random phantoms",
          "robust": "lower quantile of V_rel over the random phantoms",
-         "uniformity": "1 - coefficient of variation of V_rel over the probe grid"}
+         "uniformity": "1 - coefficient of variation of V_rel over the probe grid",
+         "image_cc": "mean correlation of the probe presses' one-step images with their footprints"}
+#: Terms computed on the probe grid.
+PROBE_TERMS = ("uniformity", "image_cc")
 _BOOTSTRAP_SEED = 20250101
 
 
@@ -88,6 +99,12 @@ class Objective:
         Indenter of every probe (mm).
     bootstrap
         Bootstrap resamples for standard errors (>= 100).
+    image_prior
+        Prior of the ``image_cc`` reconstructions (one of :data:`latticeopt.recon.classical.PRIORS`).
+    image_lambda
+        Tikhonov lambda of the ``image_cc`` reconstructions relative to the largest eigenvalue of
+        ``A P^-1 A^T`` (> 0, <= 10); the default 1e-3 is where the L-curve corner lies on 40 dB frames of the
+        probe presses (:mod:`latticeopt.study.imaging`).
     """
 
     weights: tuple[tuple[str, float], ...] = (("mean", 1.0),)
@@ -96,8 +113,12 @@ class Objective:
     probe_radius_mm: float = 7.5
     probe_depth_mm: float = 3.0
     bootstrap: int = 1000
+    image_prior: str = "laplacian"
+    image_lambda: float = 1e-3
 
     def __post_init__(self) -> None:
+        from ..recon.classical import PRIORS  # the one list of priors; recon loads scipy, so only when built
+
         w = dict(self.weights)
         for k, val in w.items():
             if k not in TERMS:
@@ -114,20 +135,29 @@ class Objective:
         object.__setattr__(self, "probe_depth_mm", v.real("probe_depth_mm", self.probe_depth_mm, lo=0,
                                                           lo_open=True))
         object.__setattr__(self, "bootstrap", v.integer("bootstrap", self.bootstrap, lo=100))
+        object.__setattr__(self, "image_prior", v.choice("image_prior", self.image_prior, PRIORS))
+        object.__setattr__(self, "image_lambda", v.real("image_lambda", self.image_lambda, lo=0, lo_open=True,
+                                                        hi=10))
 
     @property
     def needs_probes(self) -> bool:
-        return "uniformity" in dict(self.weights)
+        return any(k in dict(self.weights) for k in PROBE_TERMS)
+
+    @property
+    def needs_images(self) -> bool:
+        """Whether the probes' images are scored (``image_cc``): the model must return their voltages."""
+        return "image_cc" in dict(self.weights)
 
     def describe(self) -> str:
         parts = []
         for k, w in self.weights:
-            name = f"q{self.quantile:g} V_rel" if k == "robust" else ("mean V_rel" if k == "mean" else k)
+            name = {"robust": f"q{self.quantile:g} V_rel", "mean": "mean V_rel",
+                    "image_cc": f"image CC ({self.image_prior}, lambda {self.image_lambda:g})"}.get(k, k)
             parts.append(name if w == 1 else f"{w:g} x {name}")
         return " + ".join(parts)
 
     def probes(self, size_mm: float) -> tuple[Phantom, ...]:
-        """The uniformity probe grid on a ``size_mm`` sensor (empty unless ``uniformity`` has a weight).
+        """The probe grid on a ``size_mm`` sensor (empty unless ``uniformity`` or ``image_cc`` has a weight).
 
         Touch ``i`` sits at the centre of cell ``(i % n, i // n)`` of the ``n x n`` partition; kind ``"press"``.
         """
@@ -142,13 +172,15 @@ class Objective:
                                     depth_mm=self.probe_depth_mm),), index=i, kind="press") for i in range(n * n))
 
     # -- evaluation --------------------------------------------------------------------------------------
-    def _terms(self, random_v: np.ndarray, probe_v: np.ndarray) -> dict:
+    def _terms(self, random_v: np.ndarray, probe_v: np.ndarray, probe_cc: np.ndarray) -> dict:
         out = {}
         for k, _ in self.weights:
             if k == "mean":
                 out[k] = float(np.mean(random_v)) if random_v.size else math.nan
             elif k == "robust":
                 out[k] = float(np.quantile(random_v, self.quantile)) if random_v.size else math.nan
+            elif k == "image_cc":
+                out[k] = float(np.mean(probe_cc)) if probe_cc.size else math.nan
             else:
                 m = float(np.mean(probe_v)) if probe_v.size else math.nan
                 out[k] = 1.0 - float(np.std(probe_v)) / m if m > 0 else math.nan
@@ -157,19 +189,28 @@ class Objective:
     def _score(self, terms: Mapping[str, float]) -> float:
         return float(sum(w * terms[k] for k, w in self.weights))
 
-    def _bootstrap(self, sets: Sequence[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
-        """Scores of every design in ``sets`` under the same resampled phantom indices, shape ``(B, len(sets))``."""
+    def _bootstrap(self, sets: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> np.ndarray:
+        """Scores of every design in ``sets`` under the same resampled phantom indices, shape ``(B, len(sets))``.
+
+        A resampled probe brings its V_rel and its image correlation together (they are one press)."""
         rng = np.random.default_rng(_BOOTSTRAP_SEED)
-        n_r, n_p = sets[0][0].size, sets[0][1].size
+        n_r, n_p = sets[0][0].size, max(sets[0][1].size, sets[0][2].size)
         out = np.empty((self.bootstrap, len(sets)))
         for b in range(self.bootstrap):
             ir = rng.integers(0, n_r, n_r) if n_r else np.zeros(0, int)
             ip = rng.integers(0, n_p, n_p) if n_p else np.zeros(0, int)
-            for j, (r, p) in enumerate(sets):
-                out[b, j] = self._score(self._terms(r[ir], p[ip]))
+            for j, (r, p, c) in enumerate(sets):
+                out[b, j] = self._score(self._terms(r[ir], p[ip] if p.size else p, c[ip] if c.size else c))
         return out
 
-    def evaluate(self, random_v: Sequence[float], probe_v: Sequence[float] = ()) -> ObjectiveValue:
+    def _arrays(self, random_v, probe_v, probe_cc) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        r, p, c = (np.asarray(x, dtype=float).ravel() for x in (random_v, probe_v, probe_cc))
+        if self.needs_images and c.size != p.size:
+            raise ParameterError("probe_cc", f"one image correlation per probe ({p.size})", c.size)
+        return r, p, c
+
+    def evaluate(self, random_v: Sequence[float], probe_v: Sequence[float] = (),
+                 probe_cc: Sequence[float] = ()) -> ObjectiveValue:
         """The score of one design from its V_rel on the random phantoms and on the probes.
 
         Parameters
@@ -177,7 +218,10 @@ class Objective:
         random_v
             V_rel of every random phantom, shape ``(n,)``, NaN where a phantom failed.
         probe_v
-            V_rel of every probe, shape ``(m,)`` (only used by ``uniformity``), NaN where a probe failed.
+            V_rel of every probe, shape ``(m,)`` (used by ``uniformity``), NaN where a probe failed.
+        probe_cc
+            Image correlation of every probe, shape ``(m,)`` (used by ``image_cc``), NaN where a probe failed
+            or its image is undefined (:func:`latticeopt.study.imaging.probe_image_figures`).
 
         Returns
         -------
@@ -185,38 +229,39 @@ class Objective:
             NaN score, SE and terms when a phantom (or a probe the objective uses) failed: a design is scored on
             every phantom or not at all (module docstring).
         """
-        r, p = np.asarray(random_v, dtype=float), np.asarray(probe_v, dtype=float)
-        if not np.isfinite(r).all() or (self.needs_probes and not np.isfinite(p).all()):
+        r, p, c = self._arrays(random_v, probe_v, probe_cc)
+        if (not np.isfinite(r).all() or (self.needs_probes and not np.isfinite(p).all())
+                or (self.needs_images and not np.isfinite(c).all())):
             return ObjectiveValue(math.nan, math.nan, {k: math.nan for k, _ in self.weights})
-        terms = self._terms(r, p)
+        terms = self._terms(r, p, c)
         score = self._score(terms)
         if not math.isfinite(score):
             return ObjectiveValue(math.nan, math.nan, terms)
         if self.weights == (("mean", self.weights[0][1]),):
             se = self.weights[0][1] * float(np.std(r, ddof=1)) / math.sqrt(r.size) if r.size > 1 else math.nan
         else:
-            boot = self._bootstrap([(r, p)])[:, 0]
+            boot = self._bootstrap([(r, p, c)])[:, 0]
             se = float(np.std(boot[np.isfinite(boot)], ddof=1)) if np.isfinite(boot).sum() > 1 else math.nan
         return ObjectiveValue(score, se, terms)
 
-    def paired_difference(self, a: tuple[Sequence[float], Sequence[float]],
-                          b: tuple[Sequence[float], Sequence[float]]) -> tuple[float, float]:
+    def paired_difference(self, a: Sequence[Sequence[float]], b: Sequence[Sequence[float]]) -> tuple[float, float]:
         """``score(a) - score(b)`` and its paired standard error.
 
-        ``a`` and ``b`` are ``(random_v, probe_v)`` of two designs over the *same* phantoms, in the same order
-        (only phantoms both evaluated successfully). For ``mean`` alone the SE is that of the mean of the
-        per-phantom differences; otherwise a bootstrap resampling the same indices for both designs.
+        ``a`` and ``b`` are ``(random_v, probe_v)`` or ``(random_v, probe_v, probe_cc)`` of two designs over the
+        *same* phantoms, in the same order (only phantoms both evaluated successfully). For ``mean`` alone the SE
+        is that of the mean of the per-phantom differences; otherwise a bootstrap resampling the same indices for
+        both designs.
         """
-        ra, pa = (np.asarray(x, dtype=float) for x in a)
-        rb, pb = (np.asarray(x, dtype=float) for x in b)
-        if ra.shape != rb.shape or pa.shape != pb.shape:
-            raise ParameterError("paired_difference", "V_rel of both designs on the same phantoms",
-                                 f"{ra.size}+{pa.size} vs {rb.size}+{pb.size} values")
-        diff = self.evaluate(ra, pa).score - self.evaluate(rb, pb).score
+        ra, pa, ca = self._arrays(*a, *((),) * (3 - len(a)))
+        rb, pb, cb = self._arrays(*b, *((),) * (3 - len(b)))
+        if ra.shape != rb.shape or pa.shape != pb.shape or ca.shape != cb.shape:
+            raise ParameterError("paired_difference", "values of both designs on the same phantoms",
+                                 f"{ra.size}+{pa.size}+{ca.size} vs {rb.size}+{pb.size}+{cb.size} values")
+        diff = self.evaluate(ra, pa, ca).score - self.evaluate(rb, pb, cb).score
         if self.weights == (("mean", self.weights[0][1]),):
             d = self.weights[0][1] * (ra - rb)
             return diff, float(np.std(d, ddof=1) / math.sqrt(d.size)) if d.size > 1 else math.nan
-        boot = self._bootstrap([(ra, pa), (rb, pb)])
+        boot = self._bootstrap([(ra, pa, ca), (rb, pb, cb)])
         delta = boot[:, 0] - boot[:, 1]
         delta = delta[np.isfinite(delta)]
         return diff, float(np.std(delta, ddof=1)) if delta.size > 1 else math.nan
