@@ -23,8 +23,8 @@ from latticeopt.design import LatticeDesign
 from latticeopt.errors import LatticeoptError, ParameterError
 from latticeopt.mesh import MeshSettings
 from latticeopt.optimize import load_optimization, optimization_from_dict, run_optimization
+from latticeopt.recon.presses import PRESS_RATIO
 from latticeopt.study.imaging import (
-    FOOTPRINT_RATIO,
     ReconstructorCache,
     build_reconstructor,
     footprint_figures,
@@ -56,7 +56,7 @@ def _disc_voltages(design: LatticeDesign, touches, settings: EvalSettings) -> tu
 
     sim = _simulator(design, settings)
     model = sim.model
-    rows = np.array([[t.x_mm, t.y_mm, 2 * t.radius_mm, FOOTPRINT_RATIO] for t in touches])
+    rows = np.array([[t.x_mm, t.y_mm, 2 * t.radius_mm, PRESS_RATIO] for t in touches])
     sigma = render_touches(rows, model.sigma0_S_per_m, model.n_pixels, model.extent_mm)
     return sim.voltages(sigma[None])[0], model.v_ref
 
@@ -118,25 +118,31 @@ def _write(tmp_path: Path, max_evals: int = 4) -> Path:
 
 
 # -- the figures on known images ---------------------------------------------------------------------------------
-def test_perfect_image_scores_one_and_a_shifted_or_inverted_truth_less():
-    truth = footprints(PRESSES, 48, EXTENT)
-    assert truth.shape == (4, 48, 48) and truth.min() == pytest.approx(FOOTPRINT_RATIO - 1) and truth.max() == 0
+@pytest.fixture(scope="module")
+def model():
+    return build_reconstructor(DESIGN, EvalSettings(mesh=MESH), "laplacian")[0]
+
+
+def test_perfect_image_scores_one_and_a_shifted_or_inverted_truth_less(model):
+    assert model.extent_mm == EXTENT and model.n_pixels == 48
+    truth = footprints(model, PRESSES)
+    assert truth.shape == (4, 48, 48) and truth.min() == pytest.approx(PRESS_RATIO - 1) and truth.max() == 0
     # the disc's area on the grid is the punch's (sub-pixel coverage at the rim)
-    area = -truth.sum(axis=(1, 2)) / (1 - FOOTPRINT_RATIO) * (100 / 48) ** 2
+    area = -truth.sum(axis=(1, 2)) / (1 - PRESS_RATIO) * (100 / 48) ** 2
     assert area == pytest.approx(np.pi * PRESSES[:, 2] ** 2, rel=0.02)
-    perfect = footprint_figures(truth, PRESSES, EXTENT)
+    perfect = footprint_figures(truth, PRESSES, model)
     assert perfect["cc"] == pytest.approx(1.0, abs=1e-12)
     assert np.all(np.abs(perfect["position_error_mm"]) < 0.5) and np.all(perfect["position_offset_mm"] < 0.5)
     # any positive multiple of the truth plus a constant is as good (Pearson)
-    assert footprint_figures(3 * truth + 0.2, PRESSES, EXTENT)["cc"] == pytest.approx(1.0, abs=1e-12)
+    assert footprint_figures(3 * truth + 0.2, PRESSES, model)["cc"] == pytest.approx(1.0, abs=1e-12)
     shifted = PRESSES + np.array([10.0, 0.0, 0.0, 0.0])
-    moved = footprint_figures(footprints(shifted, 48, EXTENT), PRESSES, EXTENT)
+    moved = footprint_figures(footprints(model, shifted), PRESSES, model)
     assert np.all(moved["cc"] < 0.6) and moved["position_offset_mm"] == pytest.approx(10.0, abs=0.5)
     # a shift of a quarter radius lowers the correlation less than a shift of more than a radius
-    small = footprint_figures(footprints(PRESSES + np.array([2.0, 0, 0, 0]), 48, EXTENT), PRESSES, EXTENT)
+    small = footprint_figures(footprints(model, PRESSES + np.array([2.0, 0, 0, 0])), PRESSES, model)
     assert np.all(moved["cc"] < small["cc"]) and np.all(small["cc"] < 1 - 1e-3)
     # a press imaged as a conductivity increase is anti-correlated and has no lobe of the right sign to locate
-    wrong = footprint_figures(-truth, PRESSES, EXTENT)
+    wrong = footprint_figures(-truth, PRESSES, model)
     assert wrong["cc"] == pytest.approx(-1.0, abs=1e-12) and np.all(np.isnan(wrong["position_error_mm"]))
 
 
@@ -230,7 +236,7 @@ def test_probe_images_nan_where_a_probe_failed_and_the_cache_builds_once():
 
     y = np.stack(volts) / model.v_ref - 1
     images = lin.solve(y, 1e-3 * lin.eigenvalues.max())[0].reshape(4, 48, 48)
-    np.testing.assert_allclose(full["cc"], correlation_coefficient(images, footprints(PRESSES, 48, EXTENT)))
+    np.testing.assert_allclose(full["cc"], correlation_coefficient(images, footprints(model, PRESSES)))
     part = probe_image_figures(model, lin, [volts[0], None, volts[2], volts[3]], PRESSES, 1e-3)
     assert np.isnan(part["cc"][1]) and np.isnan(part["position_error_mm"][1])
     np.testing.assert_allclose(part["cc"][[0, 2, 3]], full["cc"][[0, 2, 3]])

@@ -9,8 +9,9 @@ per cell of an ``n x n`` grid, simulated by the coupled model through the result
    pixel Jacobian (:func:`latticeopt.sensor_model.build_sensor_model` of the design at the study's mesh settings,
    48 x 48 pixels over the sensor);
 3. its true image, the press's footprint: a disc of the punch radius at the press centre, as a conductivity
-   *decrease* (a press thins the channels under it, which acts like a less conductive disc, the convention of
-   :mod:`latticeopt.recon.presses`; the correlation does not depend on the disc's level, only on its sign);
+   *decrease* (a press thins the channels under it, which acts like a less conductive disc: the disc
+   :func:`latticeopt.recon.presses.footprint_sigma` that ``press_gap`` and ``recon-train --presses`` use; the
+   correlation does not depend on the disc's level, only on its sign);
 4. the Pearson correlation of the two (:func:`latticeopt.learn.metrics.correlation_coefficient`) and, beside it,
    GREIT's position error in mm (:func:`latticeopt.recon.merit.greit_figures`, signed: positive when the image
    sits towards the centre) and the plain distance between footprint centre and image centroid.
@@ -52,12 +53,9 @@ from ..errors import LatticeoptError
 from .phantoms import Phantom
 from .settings import EvalSettings
 
-__all__ = ["FOOTPRINT_RATIO", "ReconstructorCache", "build_reconstructor", "footprint_figures", "footprints",
+__all__ = ["FIGURES", "ReconstructorCache", "build_reconstructor", "footprint_figures", "footprints",
            "probe_image_figures", "probe_presses"]
 
-#: Conductivity over sigma0 of the footprint disc a press is compared with (any value below 1 gives the same
-#: correlation; 0.5 is what :mod:`latticeopt.recon.presses` compares presses with).
-FOOTPRINT_RATIO = 0.5
 #: Figures reported beside ``image_cc`` (means over the probes, mm).
 FIGURES = ("position_error_mm", "position_offset_mm")
 
@@ -73,26 +71,26 @@ def probe_presses(probes: Sequence[Phantom]) -> np.ndarray:
     return np.asarray(rows, dtype=float).reshape(-1, 4)
 
 
-def footprints(presses: np.ndarray, n_pixels: int, extent_mm) -> np.ndarray:
-    """True images of presses: normalized change ``FOOTPRINT_RATIO - 1`` over a disc of each punch radius at
-    its centre, 0 elsewhere, shape ``(m, n_pixels, n_pixels)`` (row ``iy``; sub-pixel coverage at the rim)."""
-    from ..recon.dataset import render_touches
+def footprints(model, presses: np.ndarray) -> np.ndarray:
+    """True images of presses on ``model``'s pixel grid: the normalized change ``(sigma - sigma0) / sigma0`` of
+    :func:`latticeopt.recon.presses.footprint_sigma` (``PRESS_RATIO - 1`` over a disc of each punch radius at
+    its centre, 0 elsewhere, sub-pixel coverage at the rim), shape ``(m, n_pixels, n_pixels)``, row ``iy``."""
+    from ..recon.presses import footprint_sigma
 
-    return np.stack([render_touches(np.array([[x, y, 2 * r, FOOTPRINT_RATIO]]), 1.0, n_pixels, extent_mm) - 1.0
-                     for x, y, r, _ in np.asarray(presses, dtype=float).reshape(-1, 4)])
+    return footprint_sigma(model, np.asarray(presses, dtype=float).reshape(-1, 4)) / model.sigma0_S_per_m - 1.0
 
 
-def footprint_figures(images: np.ndarray, presses: np.ndarray, extent_mm) -> dict[str, np.ndarray]:
+def footprint_figures(images: np.ndarray, presses: np.ndarray, model) -> dict[str, np.ndarray]:
     """Correlation with the footprint and GREIT position figures of each press image.
 
     Parameters
     ----------
     images : array, shape (m, n, n)
-        Reconstructed normalized changes over ``extent_mm``, finite.
+        Reconstructed normalized changes on ``model``'s pixel grid, finite.
     presses : array, shape (m, 4)
         ``(x_mm, y_mm, radius_mm, depth_mm)`` of each press.
-    extent_mm
-        ``(x0, x1, y0, y1)`` of the pixel grid (mm).
+    model
+        The :class:`~latticeopt.sensor_model.SensorModel` whose grid the images are on.
 
     Returns
     -------
@@ -102,11 +100,12 @@ def footprint_figures(images: np.ndarray, presses: np.ndarray, extent_mm) -> dic
     """
     from ..learn.metrics import correlation_coefficient
     from ..recon.merit import greit_figures
+    from ..recon.presses import PRESS_RATIO
 
     images = np.asarray(images, dtype=float)
     presses = np.asarray(presses, dtype=float).reshape(-1, 4)
-    truth = footprints(presses, images.shape[-1], extent_mm)
-    figs = greit_figures(images, presses[:, :2], extent_mm, contrast=FOOTPRINT_RATIO - 1)
+    truth = footprints(model, presses)
+    figs = greit_figures(images, presses[:, :2], model.extent_mm, contrast=PRESS_RATIO - 1)
     return {"cc": correlation_coefficient(images, truth), **{k: figs[k] for k in FIGURES}}
 
 
@@ -189,7 +188,7 @@ def probe_image_figures(model, lin, voltages: Sequence[np.ndarray | None], press
                                   f"{r.size} values" + ("" if np.isfinite(r).all() else " with NaN"))
     V = np.stack(rows)
     images = lin.reconstruct(relative_change(V, model.v_ref), lambda_rel * lin.eigenvalues.max())
-    figs = footprint_figures(images, np.asarray(presses, dtype=float)[ok], model.extent_mm)
+    figs = footprint_figures(images, np.asarray(presses, dtype=float)[ok], model)
     for k, a in figs.items():
         out[k][ok] = a
     return out
