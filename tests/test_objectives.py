@@ -357,3 +357,16 @@ def test_real_coupled_presses_give_images_that_correlate_with_their_footprints(t
         a = s.assessment
         assert a.n_failed == 0 and all(c > 0 for c in a.probe_cc)
         assert a.score == pytest.approx(np.mean(a.random_v) + 0.01 * np.mean(a.probe_cc))
+
+
+def test_shipped_optimize_image_study_matches_the_square_study_but_for_the_objective():
+    path = TESTS.parent / "studies" / "optimize_image.toml"
+    img = load_optimization(path)
+    square = load_optimization(TESTS.parent / "studies" / "optimize_square.toml")
+    assert img.config.objective.weights == (("image_cc", 1.0),) and len(img.probes) == 9
+    assert (img.config.objective.image_prior, img.config.objective.image_lambda) == ("laplacian", 1e-3)
+    assert img.study.phantoms == square.study.phantoms and img.study.settings.key == square.study.settings.key
+    assert img.config.names == ("width_mm",) and img.study.designs[0].thickness_mm == 3.0
+    mean = load_optimization(path, ["optimize.objective=mean", "name=optimize_image_mean"])
+    assert mean.config.objective.weights == (("mean", 1.0),) and mean.probes == ()
+    assert mean.study.settings.key == img.study.settings.key and mean.study.phantoms == img.study.phantoms

@@ -19,7 +19,8 @@ def register(sub) -> None:
 
     p = sub.add_parser(
         "optimize", help="optimize lattice geometry with nlopt over a study's fixed phantoms",
-        description="Maximize an objective of V_rel (mean, robust quantile, uniformity) over the design variables "
+        description="Maximize an objective of V_rel (mean, robust quantile, uniformity) or image quality "
+                    "(image_cc) over the design variables "
                     "of a study's [optimize] table with an nlopt algorithm. Every phantom result goes to the "
                     "study's results store (shared with sweeps): stored designs are read, not recomputed, and an "
                     "interrupted run resumes by replaying its path from the store. Schema: docs/studies.md. "

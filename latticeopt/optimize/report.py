@@ -197,8 +197,10 @@ def report_lines(result) -> list[str]:
             pe, off = (a.image_figures.get(k, math.nan) for k in ("position_error_mm", "position_offset_mm"))
             image = (f", image CC {a.terms.get('image_cc', math.nan):.4g}, mean position error {pe:.3g} mm "
                      f"(offset {off:.3g} mm) over the probes")
+        # V_rel mean and SE are over the random phantoms (assess_design); n_ok also counts the probes
+        n_random = int(np.isfinite(np.asarray(a.random_v, dtype=float)).sum())
         return (f"{_fmt_x(s.x)}: score {s.score:.5g} ± {s.se:.2g}{image}, mean V_rel {a.v_rel_mean:.5g} ± "
-                f"{a.v_rel_se:.2g} (SE over phantoms, n = {a.n_ok}{failed})")
+                f"{a.v_rel_se:.2g} (SE over the random phantoms, n = {n_random}{failed})")
 
     if result.optimum.start_step is not None and result.optimum.start_step.assessment is not None:
         lines.append("start:   " + describe(result.optimum.start_step))
