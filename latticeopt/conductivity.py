@@ -1,14 +1,14 @@
 """Hydrogel conductivity under load: the laws of ``[physics] conductivity_law`` and the kinematics they read.
 
 Laws (``sigma0`` is ``sigma_S_per_m``, the conductivity at rest; ``m`` the measure named by
-``conductivity_measure``: ``"stretch_z"``, the through-thickness stretch ``lambda_z``, default, or ``"J"``,
-the volume ratio; ``k`` is ``conductivity_k``):
+``conductivity_measure``: ``"thickness"``, the layer's through-thickness stretch ``lambda_t``, default, or
+``"J"``, the volume ratio; ``k`` is ``conductivity_k``):
 
 * ``"geometry"`` (default): ``sigma = sigma0`` (``k`` and the measure are not used). The response comes from
   the deformed geometry alone: the gel keeps its conductivity per unit volume while the channels thin, widen
   and move.
 * ``"linear"``: ``sigma = sigma0 (1 + k (1 - m))``, linear in the strain ``1 - m`` (positive under a press:
-  ``1 - lambda_z`` the compression, ``1 - J`` the volume lost).
+  ``1 - lambda_t`` the thinning, ``1 - J`` the volume lost).
 * ``"power"``: ``sigma = sigma0 m^k``. For an ionic gel whose ions stay while its volume changes, with
   unchanged mobility, the conductivity follows the ion concentration, ``1 / J``: the power law in ``J`` with
   ``k = -1`` is that idealisation (more conductive when compressed).
@@ -23,8 +23,15 @@ Kinematics consistent with the mechanics: the indentation constrains only the me
 tets (a grid cell or a prism pair, :func:`latticeopt.mechanics.assembly.dilatation_patches`); single tets
 inside a patch can reach det F from 0.24 to 1.85 while the patch keeps its volume. A law evaluated per tet
 would turn that noise into conductivity, so every measure is a patch average: ``J`` is the patch's deformed
-volume over its reference volume (the mechanics' mean dilatation) and ``lambda_z = |Fbar e_z|`` with ``Fbar``
-the volume-weighted mean deformation gradient of the patch.
+volume over its reference volume (the mechanics' mean dilatation) and ``lambda_t = det Fbar / |Fbar e_x x Fbar
+e_y|`` with ``Fbar`` the volume-weighted mean deformation gradient of the patch.
+
+``lambda_t`` is how far apart two neighbouring material planes ``z = const`` end up, over how far apart they
+were: the thinning of the layer the current flows along. It is blind to shear (a simple shear in ``x-z`` leaves
+it 1) and to rotation. The stretch of a vertical fibre, ``|Fbar e_z|``, is not: it grows as
+``sqrt(1 + gamma^2)`` in the shear band under the punch rim, which sharpens as the mesh is refined, and a law in
+it changed V_rel by +21 % and then +11 % over two halvings of the cell size where laws in ``lambda_t`` or ``J``
+settled to 1-2 % (``benchmarks/convergence_laws.py``; ``docs/verification.md``).
 """
 
 from __future__ import annotations
@@ -38,7 +45,7 @@ __all__ = ["CONDUCTIVITY_LAWS", "CONDUCTIVITY_MEASURES", "ConductivityError", "c
 
 CONDUCTIVITY_LAWS = ("geometry", "linear", "power")
 #: What ``m`` of a law is (module docstring); the first is the default.
-CONDUCTIVITY_MEASURES = ("stretch_z", "J")
+CONDUCTIVITY_MEASURES = ("thickness", "J")
 
 
 class ConductivityError(ModelFailure):
@@ -52,7 +59,7 @@ def _edges(nodes: np.ndarray, tets: np.ndarray) -> np.ndarray:
 
 def patch_measures(ref_nodes_mm: np.ndarray, nodes_mm: np.ndarray, tets: np.ndarray,
                    patch: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Patch-averaged volume ratio and through-thickness stretch, given to every tet of the patch.
+    """Patch-averaged volume ratio and through-thickness stretch of the layer, given to every tet of the patch.
 
     Parameters
     ----------
@@ -65,8 +72,9 @@ def patch_measures(ref_nodes_mm: np.ndarray, nodes_mm: np.ndarray, tets: np.ndar
 
     Returns
     -------
-    J, stretch_z : ndarray, shape (M,)
-        ``sum V_e / sum V0_e`` and ``|Fbar e_z|`` of each tet's patch, ``Fbar = sum V0_e F_e / sum V0_e``.
+    J, thickness : ndarray, shape (M,)
+        ``sum V_e / sum V0_e`` and ``det Fbar / |Fbar e_x x Fbar e_y|`` of each tet's patch,
+        ``Fbar = sum V0_e F_e / sum V0_e``.
     """
     D0, D = _edges(ref_nodes_mm, tets), _edges(nodes_mm, tets)
     vol0, vol = np.linalg.det(D0) / 6.0, np.linalg.det(D) / 6.0
@@ -75,16 +83,19 @@ def patch_measures(ref_nodes_mm: np.ndarray, nodes_mm: np.ndarray, tets: np.ndar
     n = p.max() + 1 if len(p) else 0
     v0 = np.bincount(p, np.abs(vol0), minlength=n)
     J = np.bincount(p, vol * np.sign(vol0), minlength=n) / v0
-    Fz = np.stack([np.bincount(p, np.abs(vol0) * F[:, i, 2], minlength=n) for i in range(3)], axis=1) / v0[:, None]
-    return J[p], np.linalg.norm(Fz, axis=1)[p]
+    Fbar = np.stack([np.stack([np.bincount(p, np.abs(vol0) * F[:, i, j], minlength=n) for j in range(3)], axis=1)
+                     for i in range(3)], axis=1) / v0[:, None, None]  # (P, 3, 3)
+    # the deformed patch's volume per unit deformed area of its material z-plane
+    thickness = np.linalg.det(Fbar) / np.linalg.norm(np.cross(Fbar[:, :, 0], Fbar[:, :, 1]), axis=1)
+    return J[p], thickness[p]
 
 
-def conductivity_factor(law: str, measure: str, k: float, J: np.ndarray, stretch_z: np.ndarray) -> np.ndarray:
+def conductivity_factor(law: str, measure: str, k: float, J: np.ndarray, thickness: np.ndarray) -> np.ndarray:
     """``sigma / sigma0`` per tet for a law (module docstring); raises :class:`ConductivityError` when it is not
     positive and finite everywhere."""
     if law == "geometry":
         return np.ones_like(J)
-    m = J if measure == "J" else stretch_z
+    m = J if measure == "J" else thickness
     if law == "linear":
         factor = 1.0 + k * (1.0 - m)
     elif law == "power":
@@ -97,5 +108,5 @@ def conductivity_factor(law: str, measure: str, k: float, J: np.ndarray, stretch
         i = int(np.argmax(bad))
         raise ConductivityError(f"conductivity law {law} ({measure}, k = {k:g}) gives sigma / sigma0 = "
                                 f"{factor[i]:.3g} in {int(bad.sum())} hydrogel tet(s) (J = {J[i]:.3g}, "
-                                f"lambda_z = {stretch_z[i]:.3g}): the law does not hold this far")
+                                f"lambda_t = {thickness[i]:.3g}): the law does not hold this far")
     return factor

@@ -75,8 +75,8 @@ class PhysicsSettings:
         Drive current (A); ``V_rel`` does not depend on it (linear problem).
     conductivity_law, conductivity_measure, conductivity_k
         Hydrogel conductivity under load: ``"geometry"`` (default: unchanged per unit volume), ``"linear"``
-        (``sigma0 (1 + k (1 - m))``) or ``"power"`` (``sigma0 m^k``), ``m`` the patch-averaged ``"stretch_z"``
-        (default) or volume ratio ``"J"``; ``-50 <= k <= 50``, ignored by ``"geometry"``. Meaning, the
+        (``sigma0 (1 + k (1 - m))``) or ``"power"`` (``sigma0 m^k``), ``m`` the patch-averaged ``"thickness"``
+        stretch of the layer (default) or volume ratio ``"J"``; ``-50 <= k <= 50``, ignored by ``"geometry"``. Meaning, the
         ``k = -1`` ionic idealisation and how to measure ``k``: :mod:`latticeopt.conductivity`.
     mechanics_rtol
         Convergence of the final indentation state, ``|R_free| <= rtol |R_constrained|``
@@ -245,9 +245,9 @@ class CoupledModel:
         if p.conductivity_law == "geometry":
             return None
         # hydrogel nodes are never moved by the conforming punch rim: the mesh's nodes are their reference
-        J, stretch_z = patch_measures(self.mesh.nodes_mm, ind.deformed_mesh.nodes_mm, self._gel_tets,
+        J, thickness = patch_measures(self.mesh.nodes_mm, ind.deformed_mesh.nodes_mm, self._gel_tets,
                                       self._gel_patch)
-        factor = conductivity_factor(p.conductivity_law, p.conductivity_measure, p.conductivity_k, J, stretch_z)
+        factor = conductivity_factor(p.conductivity_law, p.conductivity_measure, p.conductivity_k, J, thickness)
         return p.sigma_S_per_m * factor
 
 

@@ -28,9 +28,25 @@ def test_affine_maps_give_the_closed_form_measures_in_every_patch(mesh):
     A[2, 2] = 0.7  # compressed through the thickness
     moved = mesh.nodes_mm @ A.T + np.array([1.0, -2.0, 0.5])
     patch = rng.integers(0, 40, mesh.n_tets)  # any grouping: an affine map has the same F in every tet
-    J, lz = patch_measures(mesh.nodes_mm, moved, mesh.tets, patch)
+    J, lt = patch_measures(mesh.nodes_mm, moved, mesh.tets, patch)
     np.testing.assert_allclose(J, np.linalg.det(A), rtol=1e-10)
-    np.testing.assert_allclose(lz, np.linalg.norm(A[:, 2]), rtol=1e-10)
+    # the distance between the images of the planes z = 0 and z = 1: the z-component of A^-1 maps the deformed
+    # point back, so the deformed planes are {x : (A^-1 x)_z = c}, 1 / |row 3 of A^-1| apart
+    np.testing.assert_allclose(lt, 1 / np.linalg.norm(np.linalg.inv(A)[2]), rtol=1e-10)
+
+
+@pytest.mark.parametrize("name, A, expected", [
+    ("simple shear in x-z", np.array([[1, 0, 0.6], [0, 1, 0], [0, 0, 1.0]]), 1.0),
+    ("shear in the plane", np.array([[1, 0.5, 0], [0, 1, 0], [0, 0, 1.0]]), 1.0),
+    ("rotation about x", np.array([[1, 0, 0], [0, np.cos(0.4), -np.sin(0.4)], [0, np.sin(0.4), np.cos(0.4)]]), 1.0),
+    ("through-thickness compression with lateral bulge", np.diag([1.2, 1.1, 0.7]), 0.7),
+])
+def test_the_thickness_stretch_sees_thinning_only(mesh, name, A, expected):
+    """Shear and rotation leave the layer's thickness alone (a vertical fibre's stretch |F e_z| would read
+    sqrt(1 + 0.36) = 1.17 under the first shear); compression through the thickness is read as it is."""
+    moved = mesh.nodes_mm @ A.T
+    _, lt = patch_measures(mesh.nodes_mm, moved, mesh.tets, np.zeros(mesh.n_tets, dtype=int))
+    np.testing.assert_allclose(lt, expected, rtol=1e-12)
 
 
 def test_patch_volume_ratio_is_the_patch_volume_change_whatever_its_tets_do(mesh):
@@ -50,23 +66,23 @@ def test_patch_volume_ratio_is_the_patch_volume_change_whatever_its_tets_do(mesh
 
 def test_laws_have_their_closed_forms():
     J = np.array([0.8, 1.0, 1.2])
-    lz = np.array([0.9, 1.0, 0.7])
-    np.testing.assert_array_equal(conductivity_factor("geometry", "stretch_z", 7.0, J, lz), 1.0)
-    np.testing.assert_allclose(conductivity_factor("linear", "stretch_z", 2.0, J, lz), 1 + 2 * (1 - lz))
-    np.testing.assert_allclose(conductivity_factor("linear", "J", -1.5, J, lz), 1 - 1.5 * (1 - J))
-    np.testing.assert_allclose(conductivity_factor("power", "J", -1.0, J, lz), 1 / J)
-    np.testing.assert_allclose(conductivity_factor("power", "stretch_z", 2.5, J, lz), lz ** 2.5)
+    lt = np.array([0.9, 1.0, 0.7])
+    np.testing.assert_array_equal(conductivity_factor("geometry", "thickness", 7.0, J, lt), 1.0)
+    np.testing.assert_allclose(conductivity_factor("linear", "thickness", 2.0, J, lt), 1 + 2 * (1 - lt))
+    np.testing.assert_allclose(conductivity_factor("linear", "J", -1.5, J, lt), 1 - 1.5 * (1 - J))
+    np.testing.assert_allclose(conductivity_factor("power", "J", -1.0, J, lt), 1 / J)
+    np.testing.assert_allclose(conductivity_factor("power", "thickness", 2.5, J, lt), lt ** 2.5)
     with pytest.raises(ConductivityError, match="sigma / sigma0 = -"):
-        conductivity_factor("linear", "stretch_z", -10.0, J, lz)  # 1 - 10 * 0.3 < 0 where lambda_z = 0.7
+        conductivity_factor("linear", "thickness", -10.0, J, lt)  # 1 - 10 * 0.3 < 0 where lambda_t = 0.7
     with pytest.raises(ConductivityError):
-        conductivity_factor("power", "J", 1.0, np.array([-0.1]), lz[:1])  # an inverted patch
+        conductivity_factor("power", "J", 1.0, np.array([-0.1]), lt[:1])  # an inverted patch
 
 
 @pytest.fixture(scope="module")
 def v_rel():
     cache = {}
 
-    def run(law="geometry", k=0.0, measure="stretch_z"):
+    def run(law="geometry", k=0.0, measure="thickness"):
         key = (law, k, measure)
         if key not in cache:
             physics = PhysicsSettings(conductivity_law=law, conductivity_k=k, conductivity_measure=measure)
@@ -99,7 +115,7 @@ def test_a_law_that_breaks_is_a_model_failure_not_a_crash(mesh):
 def test_settings_are_checked_with_the_key_named():
     with pytest.raises(ParameterError, match="conductivity_law: expected one of 'geometry', 'linear', 'power'"):
         PhysicsSettings(conductivity_law="exponential")
-    with pytest.raises(ParameterError, match="conductivity_measure: expected one of 'stretch_z', 'J'"):
+    with pytest.raises(ParameterError, match="conductivity_measure: expected one of 'thickness', 'J'"):
         PhysicsSettings(conductivity_measure="strain")
     with pytest.raises(ParameterError, match="conductivity_k"):
         PhysicsSettings(conductivity_k=100.0)
