@@ -40,12 +40,27 @@ import numpy as np
 
 from .errors import ModelFailure
 
-__all__ = ["CONDUCTIVITY_LAWS", "CONDUCTIVITY_MEASURES", "ConductivityError", "conductivity_factor",
-           "patch_measures"]
+__all__ = ["CONDUCTIVITY_LAWS", "CONDUCTIVITY_MEASURES", "LAW_MESH", "ConductivityError", "conductivity_factor",
+           "law_mesh_shortfall", "patch_measures"]
 
 CONDUCTIVITY_LAWS = ("geometry", "linear", "power")
 #: What ``m`` of a law is (module docstring); the first is the default.
 CONDUCTIVITY_MEASURES = ("thickness", "J")
+
+
+#: The coarsest mesh a law's V_rel was within about 2 % of the next finer one (1 mm, 4 cells): element size
+#: (mm) and cells across a channel and through the layer. Laws in J and linear laws in the thickness stretch;
+#: the geometry law settles at the default 2 mm / 2 cells, and at that mesh the laws read 9-19 % low
+#: (``benchmarks/convergence_laws.py``, ``docs/verification.md``).
+LAW_MESH = {"size_mm": 1.4, "channel_cells": 3, "layer_cells": 3}
+
+
+def law_mesh_shortfall(size_mm: float, channel_cells: int, layer_cells: int) -> list[str]:
+    """The ways a resolved mesh is coarser than :data:`LAW_MESH`, as ``"key = value (law needs ...)"`` texts
+    (empty when it is fine enough)."""
+    got = {"size_mm": size_mm, "channel_cells": channel_cells, "layer_cells": layer_cells}
+    return [f"{k} = {got[k]:g} (needs {'<=' if k == 'size_mm' else '>='} {need:g})" for k, need in LAW_MESH.items()
+            if (got[k] > need if k == "size_mm" else got[k] < need)]
 
 
 class ConductivityError(ModelFailure):

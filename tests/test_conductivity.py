@@ -119,3 +119,21 @@ def test_settings_are_checked_with_the_key_named():
         PhysicsSettings(conductivity_measure="strain")
     with pytest.raises(ParameterError, match="conductivity_k"):
         PhysicsSettings(conductivity_k=100.0)
+
+
+def test_a_law_on_a_coarse_mesh_is_warned_about_and_the_geometry_law_is_not(caplog):
+    with caplog.at_level("WARNING", logger="latticeopt.coupled"):
+        CoupledModel(DESIGN, COARSE, PhysicsSettings(), cache_dir=False)
+    assert not caplog.records
+    with caplog.at_level("WARNING", logger="latticeopt.coupled"):
+        CoupledModel(DESIGN, COARSE, PhysicsSettings(conductivity_law="linear", conductivity_k=1.0), cache_dir=False)
+    assert "size_mm = 5 (needs <= 1.4), channel_cells = 1 (needs >= 3), layer_cells = 1 (needs >= 3)" in caplog.text
+
+
+def test_the_law_mesh_floor_is_exactly_the_documented_one():
+    from latticeopt.conductivity import law_mesh_shortfall
+
+    assert law_mesh_shortfall(1.4, 3, 3) == []
+    assert law_mesh_shortfall(1.0, 4, 4) == []
+    assert law_mesh_shortfall(2.0, 3, 3) == ["size_mm = 2 (needs <= 1.4)"]
+    assert law_mesh_shortfall(1.4, 2, 3) == ["channel_cells = 2 (needs >= 3)"]
