@@ -244,3 +244,50 @@ def test_package_version_is_the_distribution_version():
 
     meta = tomllib.loads((Path(__file__).resolve().parents[1] / "pyproject.toml").read_text())
     assert latticeopt.__version__ == meta["project"]["version"]
+
+
+ML = BASE.replace("counts = { 1 = 2, 2 = 1 }", "counts = { 1 = 2, 2 = 2 }") + """
+[multilevel]
+coarse = { size_mm = 8.0, channel_cells = 1 }
+pilot = 4
+"""
+
+
+def test_multilevel_table_loads_and_its_absence_is_the_plain_estimator(tmp_path):
+    s = load_study(_write(tmp_path, ML))
+    assert s.multilevel.coarse == MeshSettings(size_mm=8.0, channel_cells=1)
+    assert (s.multilevel.pilot, s.multilevel.se_factor) == (4, 1.1)
+    assert s.settings.mesh == MeshSettings(size_mm=5.0)  # [mesh] stays the fine level
+    assert load_study(_write(tmp_path, ML), ["multilevel.pilot=7"]).multilevel.pilot == 7
+    assert load_study(_write(tmp_path, BASE)).multilevel is None
+
+
+@pytest.mark.parametrize("edit, key", [
+    ("pilot = 4.5", "multilevel.pilot"),
+    ("pilot = 1", "multilevel.pilot"),
+    ("pilot = 4\nse_factor = 0.9", "multilevel.se_factor"),
+    ("pilot = 4\nse_factor = true", "multilevel.se_factor"),
+    ("pilot = 4\nsteps = 3", "multilevel.steps"),
+])
+def test_multilevel_errors_name_the_key(tmp_path, edit, key):
+    with pytest.raises(ParameterError) as info:
+        load_study(_write(tmp_path, ML.replace("pilot = 4", edit)))
+    assert info.value.name == f"{tmp_path / 's.toml'}: {key}"
+
+
+@pytest.mark.parametrize("coarse, key", [("{ size_mm = -1 }", "multilevel.coarse.size_mm"),
+                                         ("{ size = 4 }", "multilevel.coarse.size"),
+                                         ("{ size_mm = 5.0 }", "multilevel.coarse"),
+                                         ("4.0", "multilevel.coarse")])
+def test_multilevel_coarse_mesh_errors_name_the_key(tmp_path, coarse, key):
+    with pytest.raises(ParameterError) as info:
+        load_study(_write(tmp_path, ML.replace("{ size_mm = 8.0, channel_cells = 1 }", coarse)))
+    assert info.value.name.endswith(f": {key}")
+
+
+def test_multilevel_needs_two_phantoms_per_touch_count_and_a_grid_study(tmp_path):
+    with pytest.raises(ParameterError, match="phantoms.counts"):
+        load_study(_write(tmp_path, ML.replace("counts = { 1 = 2, 2 = 2 }", "counts = { 1 = 2, 2 = 1 }")))
+    with pytest.raises(ParameterError) as info:
+        load_study(tmp_path / "s.toml", ["multilevel.pilot=0"])
+    assert info.value.name == "--set multilevel.pilot"

@@ -16,6 +16,7 @@ from ..errors import ParameterError
 from ..mesh import MeshSettings
 from ..touches import validate_touches
 from .phantoms import MAX_TOUCHES, Comparison, Phantom, PressSeries, RandomPhantoms
+from .settings import MultilevelSettings
 
 
 def _string(name: str, value: object) -> str:
@@ -51,11 +52,13 @@ _TOP = {"name": "study name (default: file stem)", "description": "free text", "
         "model": "'module:function' evaluating one phantom", "out": "output folder", "jobs": "worker processes",
         "cache_dir": "mesh/reference cache folder", "design": "table of fixed design fields",
         "grid": "table: design field -> list of values", "phantoms": "table (kind = 'grid')",
-        "press": "table (kind = 'press')", "mesh": "table of mesh settings", "physics": "table of model settings"}
+        "press": "table (kind = 'press')", "mesh": "table of mesh settings", "physics": "table of model settings",
+        "multilevel": "table: coarse mesh, pilot, se_factor (kind = 'grid')"}
 _PHANTOM_KEYS = ("seed", "counts", "depth_mm", "radius_mm", "min_gap_mm")
 _PRESS_KEYS = ("x_mm", "y_mm", "radius_mm", "depths_mm", "compare")
 _COMPARE_KEYS = ("label", "numerator", "denominator", "reference")
 _MESH_KEYS = tuple(f.name for f in dataclasses.fields(MeshSettings))
+_MULTILEVEL_KEYS = tuple(f.name for f in dataclasses.fields(MultilevelSettings))
 
 
 def _known(where: _Where, table: Mapping, allowed: Sequence[str], prefix: str) -> None:
@@ -205,3 +208,25 @@ def _check_touches(where: _Where, table: str, designs: Sequence[LatticeDesign], 
             except ParameterError as exc:
                 raise where.error(table, f"phantoms valid on every design ({exc}; design {d.describe()})",
                                   f"phantom {p.index} ({p.n_touches} touches)") from None
+
+
+def _multilevel(where: _Where, tab: dict, fine: MeshSettings) -> MultilevelSettings:
+    """The ``[multilevel]`` table: ``coarse`` (a mesh table), ``pilot``, ``se_factor``."""
+    _known(where, tab, _MULTILEVEL_KEYS, "multilevel")
+    kwargs = dict(tab)
+    if "coarse" in tab:
+        coarse = _table(where, tab, "coarse") if isinstance(tab["coarse"], Mapping) else tab["coarse"]
+        if not isinstance(coarse, Mapping):
+            raise where.error("multilevel.coarse", "a mesh table, e.g. { size_mm = 4.0, channel_cells = 1 }", coarse)
+        _known(where, coarse, _MESH_KEYS, "multilevel.coarse")
+        try:
+            kwargs["coarse"] = MeshSettings(**coarse)
+        except ParameterError as exc:
+            raise where.wrap(f"multilevel.coarse.{exc.name}", exc) from None
+    try:
+        ml = MultilevelSettings(**kwargs)
+    except ParameterError as exc:
+        raise where.wrap(f"multilevel.{exc.name}", exc) from None
+    if ml.coarse.identity() == fine.identity():
+        raise where.error("multilevel.coarse", "a mesh differing from [mesh] (the fine level)", tab.get("coarse", {}))
+    return ml

@@ -12,6 +12,7 @@ The schema is documented in ``docs/studies.md``. In short::
     [press]                   # kind = "press": indenter location, radius, depths, ratios to print
     [mesh]                    # MeshSettings fields
     [physics]                 # model settings, keys in PHYSICS_KEYS
+    [multilevel]              # kind = "grid": coarse mesh, pilot, se_factor (two-level estimate of the fine mean)
 
 Every problem is reported before any work as a :class:`ParameterError` whose name is
 ``"<file>: <dotted key>"`` (or ``"--set <dotted key>"`` when the value came from the command line); an unknown
@@ -36,6 +37,7 @@ from ._tables import (
     _check_touches,
     _designs,
     _known,
+    _multilevel,
     _press_series,
     _random_phantoms,
     _string,
@@ -43,7 +45,7 @@ from ._tables import (
     _Where,
 )
 from .phantoms import Phantom, PressSeries, RandomPhantoms
-from .settings import DEFAULT_MODEL, PHYSICS_KEYS, EvalSettings
+from .settings import DEFAULT_MODEL, PHYSICS_KEYS, EvalSettings, MultilevelSettings
 
 __all__ = ["DEFAULT_MODEL", "PHYSICS_KEYS", "STUDY_KINDS", "EvalSettings", "Study", "apply_overrides", "load_study",
            "parse_override", "study_from_dict"]
@@ -64,6 +66,9 @@ class Study:
         ``(field, values)`` pairs in file order.
     phantoms
         The phantom set every design sees (common random numbers).
+    multilevel
+        ``[multilevel]``: estimate the fine (``settings.mesh``) mean from a coarse run plus a correction over a
+        nested subset (:mod:`latticeopt.study.multilevel_sweep`); ``None``: the plain estimator.
     """
 
     name: str
@@ -77,6 +82,7 @@ class Study:
     jobs: int = 1
     description: str = ""
     source: str = "<dict>"
+    multilevel: MultilevelSettings | None = None
     table: dict = field(default_factory=dict, compare=False, repr=False)
 
     @property
@@ -175,9 +181,20 @@ def study_from_dict(raw: Mapping, *, source: str = "<dict>", overridden: Sequenc
     except ParameterError as exc:
         key = exc.name if exc.name.startswith("physics.") else "model"
         raise where.wrap(key, exc) from None
+    multilevel = None
+    if "multilevel" in raw:
+        if kind != "grid":
+            raise where.error("multilevel", "no [multilevel] table in a kind = 'press' study (a depth series is "
+                              "not a random sample)", raw["multilevel"])
+        multilevel = _multilevel(where, _table(where, raw, "multilevel"), mesh)
+        small = sorted(k for k in {p.n_touches for p in phantoms}
+                       if sum(p.n_touches == k for p in phantoms) < 2)
+        if small:
+            raise where.error("phantoms.counts", "at least 2 phantoms per touch count with [multilevel] (each "
+                              "touch count is a stratum whose variances are estimated)", f"touch counts {small}")
     return Study(name=name, kind=kind, designs=designs, grid=grid, phantom_set=phantom_set, phantoms=phantoms,
                  settings=settings, out_dir=Path(out), jobs=jobs, description=description, source=source,
-                 table=json.loads(json.dumps(dict(raw), default=str)))
+                 multilevel=multilevel, table=json.loads(json.dumps(dict(raw), default=str)))
 
 
 # -- overrides and files ------------------------------------------------------------------------------------

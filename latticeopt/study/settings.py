@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 from ..errors import ParameterError
 from ..mesh import MeshSettings
 
-__all__ = ["DEFAULT_MODEL", "PHYSICS_KEYS", "EvalSettings"]
+__all__ = ["DEFAULT_MODEL", "PHYSICS_KEYS", "EvalSettings", "MultilevelSettings"]
 
 #: The evaluation function a study uses unless it names another (``model = "module:function"``).
 DEFAULT_MODEL = "latticeopt.coupled:evaluate_phantom"
@@ -150,3 +150,35 @@ class EvalSettings:
     def key(self) -> str:
         """SHA-256 of :meth:`as_dict` as canonical JSON: the store's ``settings_key``."""
         return hashlib.sha256(json.dumps(self.as_dict(), sort_keys=True).encode()).hexdigest()
+
+
+# -- the two-level estimator's settings ([multilevel]) -------------------------------------------------------
+@dataclass(frozen=True)
+class MultilevelSettings:
+    """A study's ``[multilevel]`` table: estimate each design's fine-mesh mean V_rel from a coarse run over every
+    phantom plus a fine-minus-coarse correction over a nested subset (:mod:`latticeopt.study.multilevel`).
+
+    Parameters
+    ----------
+    coarse
+        The coarse mesh (the study's ``[mesh]`` is the fine one); it must differ from the fine mesh.
+    pilot
+        Phantoms evaluated fine first (raised so that every touch count has two), >= 2.
+    se_factor
+        More fine phantoms are run until the two-level SE is at most ``se_factor`` times the estimated SE of
+        the plain fine mean over all phantoms (or every phantom is fine), >= 1.
+    """
+
+    coarse: MeshSettings = field(default_factory=lambda: MeshSettings(size_mm=4.0, channel_cells=1))
+    pilot: int = 10
+    se_factor: float = 1.1
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.coarse, MeshSettings):
+            raise ParameterError("coarse", "a mesh table, e.g. { size_mm = 4.0, channel_cells = 1 }", self.coarse)
+        if isinstance(self.pilot, bool) or not isinstance(self.pilot, int) or self.pilot < 2:
+            raise ParameterError("pilot", "an integer >= 2 (fine phantoms run first)", self.pilot)
+        ok = isinstance(self.se_factor, (int, float)) and not isinstance(self.se_factor, bool)
+        if not ok or not 1 <= self.se_factor < float("inf"):
+            raise ParameterError("se_factor", "a number >= 1 (allowed SE over the plain fine SE)", self.se_factor)
+        object.__setattr__(self, "se_factor", float(self.se_factor))

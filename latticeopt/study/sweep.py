@@ -143,6 +143,7 @@ class SweepResult:
     seconds: float
     outputs: dict = field(default_factory=dict)
     report: tuple[str, ...] = ()
+    multilevel: object = None  # a MultilevelRun when the study has [multilevel]; evaluations are then coarse
 
     @property
     def failed(self) -> int:
@@ -189,17 +190,30 @@ def run_sweep(study: Study, evaluate: Callable | None = None, *, jobs: int | Non
     with folder_lock(out):  # one run per folder: a second one refuses rather than compute the same phantoms
         (out / "study.json").write_text(json.dumps({**study.as_dict(), "settings": settings.as_dict(),
                                                     "settings_key": settings.key}, indent=1, default=str))
-        evaluations, computed = evaluate_designs(
-            study.designs, study.phantoms, settings, out, evaluate, jobs=study.jobs if jobs is None else jobs,
-            backend=backend, scheduler=scheduler, progress=progress, retry_failed=retry_failed, label=study.name)
+        run = dict(jobs=study.jobs if jobs is None else jobs, backend=backend, scheduler=scheduler,
+                   progress=progress, retry_failed=retry_failed)
+        ml = None
+        if study.multilevel is not None:  # coarse on every phantom, fine on a nested subset
+            from .multilevel_sweep import run_multilevel
+
+            ml = run_multilevel(study, settings, out, evaluate, **run)
+            evaluations, computed = ml.coarse, ml.computed_coarse + ml.computed_fine
+        else:
+            evaluations, computed = evaluate_designs(study.designs, study.phantoms, settings, out, evaluate,
+                                                     label=study.name, **run)
         files, report = {}, ()
-        if outputs:
+        if outputs and ml is not None:
+            from .multilevel_report import write_multilevel_outputs
+
+            files, report = write_multilevel_outputs(study, ml, out)
+        elif outputs:
             from .report import write_outputs
 
             files, report = write_outputs(study, evaluations, out)
+    total = len(evaluations) + (len(ml.fine) if ml is not None else 0)
     result = SweepResult(study=study, settings=settings, out_dir=out, evaluations=evaluations, computed=computed,
-                         skipped=len(evaluations) - computed, seconds=time.perf_counter() - t_start, outputs=files,
-                         report=tuple(report))
+                         skipped=total - computed, seconds=time.perf_counter() - t_start, outputs=files,
+                         report=tuple(report), multilevel=ml)
     if evaluations and result.failed == len(evaluations):
         raise AllFailedError(all_failed_message(evaluations, computed, out, "results.csv" if outputs else None),
                              result)

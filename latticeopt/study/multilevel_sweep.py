@@ -1,0 +1,160 @@
+"""Run a study with a ``[multilevel]`` table: every phantom on the coarse mesh, a nested subset on the fine one.
+
+The statistics are :mod:`latticeopt.study.multilevel`; this module only decides what to evaluate and reads the
+store. Steps:
+
+1. Every design x phantom on the coarse mesh (the study's settings with ``mesh = multilevel.coarse``).
+2. The phantoms every compared design solved at the coarse level, ordered by
+   :func:`~latticeopt.study.multilevel.fine_order` (touch counts interleaved): the fine subset of a design is a
+   prefix of that one order, so it is nested and common to all designs.
+3. A pilot prefix on the fine mesh (the study's own settings), then, per design, longer prefixes
+   (:func:`~latticeopt.study.multilevel.next_fine_count`) until the two-level SE is within ``se_factor`` of the
+   estimated plain fine SE or every phantom is fine. Designs asking for the same prefix are evaluated together.
+
+Both levels go through :func:`~latticeopt.study.sweep.evaluate_designs` into the one store, each under its own
+settings key (the key hashes the mesh): an interrupted run started again reads everything stored, makes the
+same decisions from the same numbers and computes only what is missing. Failures follow the plain sweep's rule:
+a phantom that any compared design failed, at either level, is left out for every design (at both levels); the
+order is then rebuilt over the remaining phantoms and any phantom that enters a prefix is evaluated. A fine
+failure of a phantom outside every design's subset cannot be seen: the estimate is of the mean over the
+phantoms that every design solved at the coarse level and, where run, at the fine one.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from .config import Study
+from .multilevel import MultilevelEstimate, fine_order, multilevel_estimate, next_fine_count
+from .settings import EvalSettings
+from .store import Evaluation
+
+__all__ = ["MultilevelRun", "run_multilevel"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class MultilevelRun:
+    """What a two-level sweep evaluated and estimated.
+
+    Attributes
+    ----------
+    coarse_settings, fine_settings
+        The settings (and so store keys) of the two levels.
+    coarse
+        One coarse evaluation per task, in task order (design-major).
+    fine
+        ``(design position, phantom position) -> Evaluation`` of every fine evaluation made or read.
+    used
+        Phantom positions every compared design solved (both levels where run), in sequence order.
+    order
+        ``used`` in fine order: design ``i``'s fine subset is ``order[:n_fine[i]]``.
+    n_fine
+        Prefix length per design (0 for a design not compared).
+    estimates
+        Per design the :class:`~latticeopt.study.multilevel.MultilevelEstimate`, ``None`` if not compared.
+    compared
+        Positions of the designs with at least one coarse success.
+    computed_coarse, computed_fine
+        Evaluations computed now (the rest came from the store).
+    """
+
+    coarse_settings: EvalSettings
+    fine_settings: EvalSettings
+    coarse: tuple[Evaluation, ...]
+    fine: dict
+    used: tuple[int, ...]
+    order: tuple[int, ...]
+    n_fine: tuple[int, ...]
+    estimates: tuple[MultilevelEstimate | None, ...]
+    compared: tuple[int, ...]
+    computed_coarse: int
+    computed_fine: int
+
+    def level_arrays(self, study: Study, design: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(coarse, fine, strata)`` over :attr:`used` for one design; fine is NaN outside its prefix."""
+        return _arrays(study, self.coarse, self.fine, list(self.used), list(self.order), design,
+                       self.n_fine[design])
+
+
+def _arrays(study, coarse, fine, used, order, i, n):
+    nph = len(study.phantoms)
+    pos = {j: k for k, j in enumerate(used)}
+    c = np.array([coarse[i * nph + j].v_rel for j in used], dtype=float)
+    f = np.full(len(used), np.nan)
+    for j in order[:n]:
+        f[pos[j]] = fine[(i, j)].v_rel
+    strata = np.array([study.phantoms[j].n_touches for j in used])
+    return c, f, strata
+
+
+def run_multilevel(study: Study, settings: EvalSettings, out_dir, evaluate: Callable, *, jobs: int = 1,
+                   backend: str = "local", scheduler=None, progress: bool = False,
+                   retry_failed: bool = False) -> MultilevelRun:
+    """Evaluate ``study`` at both levels through the store in ``out_dir`` (module docstring).
+
+    Parameters
+    ----------
+    study
+        A study with ``study.multilevel`` set.
+    settings
+        The fine level's settings (the study's, with the model :func:`~.sweep.run_sweep` resolved).
+    out_dir, evaluate, jobs, backend, scheduler, progress, retry_failed
+        As in :func:`latticeopt.study.sweep.evaluate_designs`.
+    """
+    from .sweep import evaluate_designs  # sweep dispatches here: import at call time
+
+    ml = study.multilevel
+    coarse_settings = dataclasses.replace(settings, mesh=ml.coarse)
+    run = dict(evaluate=evaluate, jobs=jobs, backend=backend, scheduler=scheduler, progress=progress,
+               retry_failed=retry_failed)
+    coarse, computed_coarse = evaluate_designs(study.designs, study.phantoms, coarse_settings, out_dir,
+                                               label=f"{study.name} (coarse)", **run)
+    nd, nph = len(study.designs), len(study.phantoms)
+    compared = [i for i in range(nd) if any(coarse[i * nph + j].ok for j in range(nph))]
+    fine: dict = {}
+    n = dict.fromkeys(compared, 0)
+    computed_fine = 0
+    while True:
+        used = [j for j in range(nph)
+                if all(coarse[i * nph + j].ok and (fine[(i, j)].ok if (i, j) in fine else True) for i in compared)]
+        strata = np.array([study.phantoms[j].n_touches for j in used])
+        order = [used[k] for k in fine_order(strata)] if used else []
+        want: dict[int, int] = {}
+        for i in compared:
+            if not used:
+                break
+            n[i] = min(n[i], len(used))
+            if any((i, j) not in fine for j in order[:n[i]]):  # exclusions moved a new phantom into the prefix
+                want[i] = n[i]
+                continue
+            c, f, s = _arrays(study, coarse, fine, used, order, i, n[i])
+            nxt = next_fine_count(c, f, s, n[i], pilot=ml.pilot, se_factor=ml.se_factor)
+            if nxt != n[i]:
+                want[i] = nxt
+        if not want:
+            break
+        for m in sorted(set(want.values())):  # designs asking for the same prefix run together
+            group = [i for i in want if want[i] == m]
+            evals, done = evaluate_designs([study.designs[i] for i in group], [study.phantoms[j] for j in order[:m]],
+                                           settings, out_dir, label=f"{study.name} (fine, {m} phantoms)", **run)
+            computed_fine += done
+            for g, i in enumerate(group):
+                for k, j in enumerate(order[:m]):
+                    fine[(i, j)] = evals[g * m + k]
+                n[i] = m
+        log.info("%s: fine phantoms per design %s", study.name, sorted(set(n.values())))
+    estimates: list[MultilevelEstimate | None] = [None] * nd
+    for i in compared:
+        if used and n[i]:
+            estimates[i] = multilevel_estimate(*_arrays(study, coarse, fine, used, order, i, n[i]))
+    return MultilevelRun(coarse_settings=coarse_settings, fine_settings=settings, coarse=coarse, fine=fine,
+                         used=tuple(used), order=tuple(order), n_fine=tuple(n.get(i, 0) for i in range(nd)),
+                         estimates=tuple(estimates), compared=tuple(compared), computed_coarse=computed_coarse,
+                         computed_fine=computed_fine)

@@ -1,0 +1,178 @@
+"""The two-level sweep: both levels through the store, the fine count per design, resume, outputs, CLI.
+
+The model is a TEST DOUBLE (``fake_two_level``): a cheap deterministic function of design, phantom and mesh size
+whose coarse value is a biased, noisy copy of the fine one. It exercises the machinery, not physics.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import math
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from latticeopt.study.config import load_study
+from latticeopt.study.multilevel import fine_order, multilevel_estimate
+from latticeopt.study.store import ResultStore
+from latticeopt.study.sweep import run_sweep
+
+TESTS = Path(__file__).parent
+LOG_ENV = "LATTICEOPT_TEST_ML_LOG"
+STOP_ENV = "LATTICEOPT_TEST_ML_STOP"  # interrupt (KeyboardInterrupt) once this many calls are logged
+
+
+def _fine_value(design, phantom) -> float:
+    load = sum(t.depth_mm * t.radius_mm for t in phantom.touches)
+    return 1e-3 * load * (1 + 0.05 * design.width_mm) / design.thickness_mm
+
+
+def _value(design, phantom, size_mm: float) -> float:
+    f = _fine_value(design, phantom)
+    if size_mm <= 3.0:
+        return f
+    return 0.9 * f - 2e-3 + 1e-3 * math.sin(7.0 * phantom.index + 3.0 * phantom.n_touches + design.width_mm)
+
+
+def fake_two_level(design, phantom, settings) -> dict:
+    """TEST DOUBLE: fine (mesh <= 3 mm) and coarse values of one phantom; logs every call."""
+    log = os.environ.get(LOG_ENV)
+    if log:
+        stop = int(os.environ.get(STOP_ENV, "0"))
+        if stop and os.path.exists(log) and len(Path(log).read_text().splitlines()) >= stop:
+            raise KeyboardInterrupt("test interrupt")
+        with open(log, "a") as fh:
+            fh.write(f"{settings.mesh.size_mm} {design.content_hash()} {phantom.key}\n")
+    return {"v_rel": _value(design, phantom, settings.mesh.size_mm)}
+
+
+STUDY = """
+name = "ml"
+out = "{out}"
+[design]
+thickness_mm = 3.0
+[grid]
+width_mm = [2, 4]
+[phantoms]
+seed = 3
+counts = {{ 1 = 12, 2 = 12, 3 = 12 }}
+[mesh]
+size_mm = 2.0
+[multilevel]
+coarse = {{ size_mm = 4.0, channel_cells = 1 }}
+pilot = {pilot}
+se_factor = {factor}
+"""
+
+
+def _study(tmp_path: Path, pilot=6, factor=1.1, out="out", overrides=()):
+    path = tmp_path / "study.toml"
+    path.write_text(STUDY.format(out=(tmp_path / out).as_posix(), pilot=pilot, factor=factor))
+    return load_study(path, overrides)
+
+
+def _calls(path: Path) -> list[str]:
+    return path.read_text().splitlines() if path.exists() else []
+
+
+def test_estimates_match_the_statistics_and_meet_the_criterion(tmp_path, monkeypatch):
+    monkeypatch.setenv(LOG_ENV, str(tmp_path / "calls.log"))
+    study = _study(tmp_path)
+    res = run_sweep(study, fake_two_level, progress=False)
+    ml = res.multilevel
+    nph = len(study.phantoms)
+    strata = np.array([p.n_touches for p in study.phantoms])
+    order = fine_order(strata)
+    assert list(ml.order) == [int(j) for j in order]  # nothing failed: every phantom is used
+    calls = _calls(tmp_path / "calls.log")
+    assert len(calls) == len(set(calls)) == 2 * nph + sum(ml.n_fine)  # every evaluation once
+    with open(res.outputs["summary"]) as fh:
+        summary = list(csv.DictReader(fh))
+    for i, design in enumerate(study.designs):
+        n = ml.n_fine[i]
+        assert 6 <= n < nph  # the coarse level is informative here: fewer than all fine
+        c = np.array([_value(design, p, 4.0) for p in study.phantoms])
+        f = np.full(nph, np.nan)
+        f[order[:n]] = [_fine_value(design, study.phantoms[j]) for j in order[:n]]
+        want = multilevel_estimate(c, f, strata)
+        assert ml.estimates[i] == want
+        assert want.se <= 1.1 * want.plain_fine_se
+        row = summary[i]
+        assert float(row["v_rel_mean"]) == pytest.approx(want.mean, rel=1e-12)
+        assert float(row["v_rel_se"]) == pytest.approx(want.se, rel=1e-12)
+        assert (int(row["n_fine"]), int(row["n_coarse"])) == (n, nph)
+        assert float(row["plain_fine_se_est"]) == pytest.approx(want.plain_fine_se, rel=1e-12)
+        # the estimate is close to the true fine mean of these phantoms (within 3 SE)
+        true = np.mean([_fine_value(design, p) for p in study.phantoms])
+        assert abs(want.mean - true) < 3 * want.se
+    with ResultStore(res.out_dir, readonly=True) as store:
+        assert len(store.done_keys(ml.coarse_settings.key)) == 2 * nph
+        assert len(store.done_keys(ml.fine_settings.key)) == sum(ml.n_fine)
+    assert ml.coarse_settings.key != ml.fine_settings.key
+    report = (res.out_dir / "report.txt").read_text()
+    assert "two-level estimator" in report and "best minus runner-up" in report
+    again = run_sweep(_study(tmp_path), fake_two_level, progress=False)
+    assert again.computed == 0 and len(_calls(tmp_path / "calls.log")) == len(calls)
+    assert again.multilevel.estimates == ml.estimates
+
+
+def test_se_factor_one_runs_every_phantom_fine_and_equals_the_plain_sweep(tmp_path):
+    study = _study(tmp_path, factor=1.0)
+    ml = run_sweep(study, fake_two_level, progress=False).multilevel
+    assert ml.n_fine == (len(study.phantoms),) * 2
+    plain = dataclasses.replace(study, multilevel=None)  # the plain estimator on the fine mesh
+    res = run_sweep(plain, fake_two_level, progress=False, out_dir=tmp_path / "plain")
+    with open(res.outputs["summary"]) as fh:
+        rows = list(csv.DictReader(fh))
+    for e, row in zip(ml.estimates, rows):
+        assert e.mean == pytest.approx(float(row["v_rel_mean"]), rel=1e-12)
+
+
+def test_interrupted_run_resumes_without_recomputing(tmp_path, monkeypatch):
+    log = tmp_path / "calls.log"
+    monkeypatch.setenv(LOG_ENV, str(log))
+    ref = run_sweep(_study(tmp_path, out="ref"), fake_two_level, progress=False).multilevel
+    log.unlink()
+    total = 2 * 36 + sum(ref.n_fine)
+    stop = 2 * 36 + 3  # past the coarse level, inside the fine pilot
+    monkeypatch.setenv(STOP_ENV, str(stop))
+    with pytest.raises(KeyboardInterrupt):
+        run_sweep(_study(tmp_path), fake_two_level, progress=False)
+    assert len(_calls(log)) == stop
+    monkeypatch.delenv(STOP_ENV)
+    res = run_sweep(_study(tmp_path), fake_two_level, progress=False)
+    calls = _calls(log)
+    assert len(calls) == len(set(calls)) == total  # nothing computed twice
+    assert res.computed == total - stop
+    assert res.multilevel.estimates == ref.estimates and res.multilevel.n_fine == ref.n_fine
+
+
+def _cli(tmp_path: Path, *extra: str) -> subprocess.CompletedProcess:
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(TESTS), os.environ.get("PYTHONPATH", "")])}
+    cmd = [sys.executable, "-m", "latticeopt", "sweep", str(tmp_path / "study.toml"), "--evaluate",
+           "test_multilevel_sweep:fake_two_level", "--no-progress", "--jobs", "1", *extra]
+    return subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=120)
+
+
+@pytest.mark.parametrize("setting, key", [("multilevel.pilot=1", "--set multilevel.pilot"),
+                                          ("multilevel.se_factor=0.5", "--set multilevel.se_factor"),
+                                          ("multilevel.coarse.size_mm=-4", "--set multilevel.coarse.size_mm")])
+def test_cli_bad_values_exit_2_with_one_line_naming_the_key(tmp_path, setting, key):
+    _study(tmp_path)
+    done = _cli(tmp_path, "--set", setting)
+    assert done.returncode == 2
+    err = done.stderr.strip().splitlines()
+    assert len(err) == 1 and key in err[0]
+    assert not (tmp_path / "out" / "results.sqlite").exists()  # refused before any work
+
+
+def test_cli_set_pilot_runs_and_prints_the_report(tmp_path):
+    _study(tmp_path)
+    done = _cli(tmp_path, "--set", "multilevel.pilot=9")
+    assert done.returncode == 0, done.stderr
+    assert "two-level estimator" in done.stdout and "pilot 9" in done.stdout
