@@ -61,6 +61,11 @@ def run_sweep_command(args: argparse.Namespace) -> int:
         print(f"{study.name} ({study.kind}): {len(study.designs)} designs x {len(study.phantoms)} phantoms = "
               f"{study.n_tasks} evaluations, {stored} stored; model {study.settings.model}; "
               f"mesh {study.settings.mesh.mesher} {study.settings.mesh.size_mm:g} mm; out {study.out_dir}")
+        if study.multilevel is not None:
+            ml = study.multilevel
+            print(f"two-level: every phantom also on the coarse mesh {ml.coarse.size_mm:g} mm, the fine mesh on a "
+                  f"pilot of {ml.pilot} and more until SE <= {ml.se_factor:g} x the plain fine SE (counted above: "
+                  "the fine level if every phantom were run)")
         return 0
     result = run_sweep(study, jobs=args.jobs, backend=args.backend, scheduler=args.scheduler,
                        progress=not args.no_progress, retry_failed=args.retry_failed)
