@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from latticeopt.errors import ConvergenceError
 from latticeopt.study.config import load_study
 from latticeopt.study.multilevel import fine_order, multilevel_estimate
 from latticeopt.study.store import ResultStore
@@ -49,6 +50,13 @@ def fake_two_level(design, phantom, settings) -> dict:
         with open(log, "a") as fh:
             fh.write(f"{settings.mesh.size_mm} {design.content_hash()} {phantom.key}\n")
     return {"v_rel": _value(design, phantom, settings.mesh.size_mm)}
+
+
+def fake_two_level_failing(design, phantom, settings) -> dict:
+    """TEST DOUBLE: as fake_two_level, but the fine level of the w = 4 design fails on 2-touch phantom 0."""
+    if settings.mesh.size_mm <= 3.0 and design.width_mm == 4 and phantom.n_touches == 2 and phantom.index == 0:
+        raise ConvergenceError("fake: the fine mechanics did not converge")
+    return fake_two_level(design, phantom, settings)
 
 
 STUDY = """
@@ -176,3 +184,22 @@ def test_cli_set_pilot_runs_and_prints_the_report(tmp_path):
     done = _cli(tmp_path, "--set", "multilevel.pilot=9")
     assert done.returncode == 0, done.stderr
     assert "two-level estimator" in done.stdout and "pilot 9" in done.stdout
+
+
+def test_a_fine_failure_leaves_the_phantom_out_for_every_design_at_both_levels(tmp_path):
+    study = _study(tmp_path)
+    res = run_sweep(study, fake_two_level_failing, progress=False)
+    ml = res.multilevel
+    bad = next(j for j, p in enumerate(study.phantoms) if p.n_touches == 2 and p.index == 0)
+    assert bad in fine_order(np.array([p.n_touches for p in study.phantoms]))[:6]  # it was in the pilot
+    assert not ml.fine[(1, bad)].ok and bad not in ml.used and len(ml.used) == len(study.phantoms) - 1
+    for i, design in enumerate(study.designs):
+        prefix = ml.order[:ml.n_fine[i]]
+        assert bad not in prefix and all(ml.fine[(i, j)].ok for j in prefix)
+        c, f, s = ml.level_arrays(study, i)
+        want = multilevel_estimate(c, f, s)
+        assert ml.estimates[i] == want and want.n_coarse == len(study.phantoms) - 1
+        kept = [study.phantoms[j] for j in ml.used]
+        assert c.tolist() == [_value(design, p, 4.0) for p in kept]
+    with open(res.outputs["summary"]) as fh:
+        assert [int(r["failed_fine"]) for r in csv.DictReader(fh)] == [0, 1]
