@@ -66,6 +66,10 @@ def run_sweep_command(args: argparse.Namespace) -> int:
             print(f"two-level: every phantom also on the coarse mesh {ml.coarse.size_mm:g} mm, the fine mesh on a "
                   f"pilot of {ml.pilot} and more until SE <= {ml.se_factor:g} x the plain fine SE (counted above: "
                   "the fine level if every phantom were run)")
+        if study.adaptive is not None:
+            ad = study.adaptive
+            print(f"adaptive: each design runs {ad.min_per_design} phantoms, then {ad.batch_size} more at a time "
+                  f"until the SE of its mean V_rel <= {ad.target_se:g} (counted above: every phantom, the maximum)")
         return 0
     result = run_sweep(study, jobs=args.jobs, backend=args.backend, scheduler=args.scheduler,
                        progress=not args.no_progress, retry_failed=args.retry_failed)

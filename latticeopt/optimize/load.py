@@ -127,6 +127,9 @@ def optimization_from_dict(raw: Mapping, *, source: str = "<dict>", overridden: 
     variables = _variables(nm, tab.get("variables", {}), design)
     raw["design"] = {**design, **{x.name: x.start for x in variables}}
     study = study_from_dict(raw, source=source, overridden=overridden, default_name=default_name)
+    if study.adaptive is not None:  # the objective needs one fixed phantom set for every candidate
+        raise ParameterError(nm("phantoms.target_se"), "no adaptive phantom counts in an optimization study (every "
+                             "candidate is scored on all phantoms of counts)", study.adaptive.target_se)
     ckeys = nm.known(tab.get("constraints", {}), _CONSTRAINT_KEYS, "optimize.constraints")
     try:
         constraints = Constraints(**ckeys)

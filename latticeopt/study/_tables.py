@@ -16,7 +16,7 @@ from ..errors import ParameterError
 from ..mesh import MeshSettings
 from ..touches import validate_touches
 from .phantoms import MAX_TOUCHES, Comparison, Phantom, PressSeries, RandomPhantoms
-from .settings import MultilevelSettings
+from .settings import AdaptiveSettings, MultilevelSettings
 
 
 def _string(name: str, value: object) -> str:
@@ -54,7 +54,8 @@ _TOP = {"name": "study name (default: file stem)", "description": "free text", "
         "grid": "table: design field -> list of values", "phantoms": "table (kind = 'grid')",
         "press": "table (kind = 'press')", "mesh": "table of mesh settings", "physics": "table of model settings",
         "multilevel": "table: coarse mesh, pilot, se_factor (kind = 'grid')"}
-_PHANTOM_KEYS = ("seed", "counts", "depth_mm", "radius_mm", "min_gap_mm")
+_ADAPTIVE_KEYS = tuple(f.name for f in dataclasses.fields(AdaptiveSettings))
+_PHANTOM_KEYS = ("seed", "counts", "depth_mm", "radius_mm", "min_gap_mm", *_ADAPTIVE_KEYS)
 _PRESS_KEYS = ("x_mm", "y_mm", "radius_mm", "depths_mm", "compare")
 _COMPARE_KEYS = ("label", "numerator", "denominator", "reference")
 _MESH_KEYS = tuple(f.name for f in dataclasses.fields(MeshSettings))
@@ -230,3 +231,23 @@ def _multilevel(where: _Where, tab: dict, fine: MeshSettings) -> MultilevelSetti
     if ml.coarse.identity() == fine.identity():
         raise where.error("multilevel.coarse", "a mesh differing from [mesh] (the fine level)", tab.get("coarse", {}))
     return ml
+
+
+def _adaptive(where: _Where, tab: dict, n_phantoms: int) -> AdaptiveSettings | None:
+    """The adaptive keys of ``[phantoms]`` (``target_se``, ``min_per_design``, ``batch_size``); ``None`` without
+    ``target_se``. ``n_phantoms`` (the sum of ``counts``) is the most any design runs."""
+    given = {k: tab[k] for k in _ADAPTIVE_KEYS if k in tab}
+    if not given:
+        return None
+    if "target_se" not in given:
+        first = next(iter(given))
+        raise where.error(f"phantoms.{first}", "phantoms.target_se as well (it only applies to adaptive "
+                          "phantom counts)", given[first])
+    try:
+        adaptive = AdaptiveSettings(**given)
+    except ParameterError as exc:
+        raise where.wrap(f"phantoms.{exc.name}", exc) from None
+    if "min_per_design" in given and adaptive.min_per_design > n_phantoms:  # the default is capped by the run
+        raise where.error("phantoms.min_per_design", f"at most the {n_phantoms} phantoms of phantoms.counts (the "
+                          "most a design runs)", adaptive.min_per_design)
+    return adaptive

@@ -8,7 +8,7 @@ The schema is documented in ``docs/studies.md``. In short::
     jobs = 2                  # worker processes
     [design]                  # fixed LatticeDesign fields
     [grid]                    # LatticeDesign fields -> lists of values (their product is the design set)
-    [phantoms]                # kind = "grid": seed, counts per touch number, ranges
+    [phantoms]                # kind = "grid": seed, counts per touch number, ranges; target_se (adaptive counts)
     [press]                   # kind = "press": indenter location, radius, depths, ratios to print
     [mesh]                    # MeshSettings fields
     [physics]                 # model settings, keys in PHYSICS_KEYS
@@ -33,6 +33,7 @@ from ..mesh import MeshSettings
 from ._tables import (
     _MESH_KEYS,
     _TOP,
+    _adaptive,
     _check_selectors,
     _check_touches,
     _designs,
@@ -45,7 +46,7 @@ from ._tables import (
     _Where,
 )
 from .phantoms import Phantom, PressSeries, RandomPhantoms
-from .settings import DEFAULT_MODEL, PHYSICS_KEYS, EvalSettings, MultilevelSettings
+from .settings import DEFAULT_MODEL, PHYSICS_KEYS, AdaptiveSettings, EvalSettings, MultilevelSettings
 
 __all__ = ["DEFAULT_MODEL", "PHYSICS_KEYS", "STUDY_KINDS", "EvalSettings", "Study", "apply_overrides", "load_study",
            "parse_override", "study_from_dict"]
@@ -69,6 +70,9 @@ class Study:
     multilevel
         ``[multilevel]``: estimate the fine (``settings.mesh``) mean from a coarse run plus a correction over a
         nested subset (:mod:`latticeopt.study.multilevel_sweep`); ``None``: the plain estimator.
+    adaptive
+        ``target_se`` etc. in ``[phantoms]``: each design runs a prefix of one common phantom order, in batches,
+        until its SE meets the target (:mod:`latticeopt.study.adaptive_sweep`); ``None``: every phantom.
     """
 
     name: str
@@ -83,6 +87,7 @@ class Study:
     description: str = ""
     source: str = "<dict>"
     multilevel: MultilevelSettings | None = None
+    adaptive: AdaptiveSettings | None = None
     table: dict = field(default_factory=dict, compare=False, repr=False)
 
     @property
@@ -143,10 +148,12 @@ def study_from_dict(raw: Mapping, *, source: str = "<dict>", overridden: Sequenc
         raise where.error("grid.size_mm", "one sensor size for all designs (phantoms are shared by every "
                           "design)", sorted(sizes))
 
+    adaptive = None
     if kind == "grid":
         if "press" in raw:
             raise where.error("press", "no [press] table in a kind = 'grid' study (use [phantoms])", raw["press"])
         phantom_set: RandomPhantoms | PressSeries = _random_phantoms(where, _table(where, raw, "phantoms"))
+        adaptive = _adaptive(where, _table(where, raw, "phantoms"), sum(n for _, n in phantom_set.counts))
         table_name = "phantoms"
         # the range, not the draws: a depth range reaching the stack thickness is wrong even if no draw hits it
         thinnest = min(d.total_thickness_mm for d in designs)
@@ -186,6 +193,10 @@ def study_from_dict(raw: Mapping, *, source: str = "<dict>", overridden: Sequenc
         if kind != "grid":
             raise where.error("multilevel", "no [multilevel] table in a kind = 'press' study (a depth series is "
                               "not a random sample)", raw["multilevel"])
+        if adaptive is not None:  # each chooses its own phantom counts; combining them is not implemented
+            raise where.error("phantoms.target_se", "no phantoms.target_se in a study with [multilevel] (the two-"
+                              "level estimator chooses its own fine counts; use one or the other)",
+                              adaptive.target_se)
         multilevel = _multilevel(where, _table(where, raw, "multilevel"), mesh)
         small = sorted(k for k in {p.n_touches for p in phantoms}
                        if sum(p.n_touches == k for p in phantoms) < 2)
@@ -194,7 +205,7 @@ def study_from_dict(raw: Mapping, *, source: str = "<dict>", overridden: Sequenc
                               "touch count is a stratum whose variances are estimated)", f"touch counts {small}")
     return Study(name=name, kind=kind, designs=designs, grid=grid, phantom_set=phantom_set, phantoms=phantoms,
                  settings=settings, out_dir=Path(out), jobs=jobs, description=description, source=source,
-                 multilevel=multilevel, table=json.loads(json.dumps(dict(raw), default=str)))
+                 multilevel=multilevel, adaptive=adaptive, table=json.loads(json.dumps(dict(raw), default=str)))
 
 
 # -- overrides and files ------------------------------------------------------------------------------------

@@ -57,6 +57,9 @@ def _convergence_status(study: Study) -> str:
 def _phantom_caption(study: Study, summary: Sequence[dict]) -> str:
     n = max((s["n"] for s in summary), default=0)
     total = len(study.phantoms)
+    if study.adaptive is not None:  # designs ran different numbers of phantoms
+        low = min((s["n"] for s in summary if s["n"]), default=0)
+        return f"{low}-{n} of {total} phantoms per design (until SE <= {study.adaptive.target_se:g})"
     return f"{n} phantoms per design" + ("" if n == total else f" (the {n} of {total} all designs solved)")
 
 

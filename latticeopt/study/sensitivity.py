@@ -76,6 +76,9 @@ def load_variants(path: str | Path, variations: Sequence[Variation], overrides: 
     Returns ``(label, key, value, study)`` rows; the baseline has key and value ``None``.
     """
     base = load_study(path, overrides)
+    if base.adaptive is not None:  # every run must be compared on the same, full phantom set
+        raise ParameterError(f"{path}: phantoms.target_se", "no adaptive phantom counts in a sensitivity study (each "
+                             "run is summarized over every phantom)", base.adaptive.target_se)
     if base.kind == "grid" and len(base.designs) * len(base.phantoms) > 400:
         raise ParameterError("STUDY", "a press study or a small grid (at most 400 evaluations per run)",
                              f"{len(base.designs)} designs x {len(base.phantoms)} phantoms")

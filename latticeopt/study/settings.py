@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 from ..errors import ParameterError
 from ..mesh import MeshSettings
 
-__all__ = ["DEFAULT_MODEL", "PHYSICS_KEYS", "EvalSettings", "MultilevelSettings"]
+__all__ = ["DEFAULT_MODEL", "PHYSICS_KEYS", "AdaptiveSettings", "EvalSettings", "MultilevelSettings"]
 
 #: The evaluation function a study uses unless it names another (``model = "module:function"``).
 DEFAULT_MODEL = "latticeopt.coupled:evaluate_phantom"
@@ -182,3 +182,38 @@ class MultilevelSettings:
         if not ok or not 1 <= self.se_factor < float("inf"):
             raise ParameterError("se_factor", "a number >= 1 (allowed SE over the plain fine SE)", self.se_factor)
         object.__setattr__(self, "se_factor", float(self.se_factor))
+
+
+# -- adaptive phantom counts (target_se and friends in [phantoms]) -------------------------------------------
+@dataclass(frozen=True)
+class AdaptiveSettings:
+    """The adaptive keys of a study's ``[phantoms]`` table: each design runs phantoms in batches until the standard
+    error of its mean V_rel is at most ``target_se`` or it has run every phantom (:mod:`.adaptive_sweep`).
+
+    Parameters
+    ----------
+    target_se
+        Target standard error of a design's mean V_rel (absolute, V_rel units, dimensionless), > 0.
+    min_per_design
+        Phantoms every design runs before its SE is first checked, >= 2 (the SE of fewer is too noisy to stop
+        on; at most the study's number of phantoms, checked where that is known).
+    batch_size
+        Phantoms added to a design that has not met the target, >= 1.
+    """
+
+    target_se: float
+    min_per_design: int = 30
+    batch_size: int = 15
+
+    def __post_init__(self) -> None:
+        ok = isinstance(self.target_se, (int, float)) and not isinstance(self.target_se, bool)
+        if not ok or not 0 < self.target_se < float("inf"):
+            raise ParameterError("target_se", "a number > 0 (standard error of the mean V_rel, V_rel units)",
+                                 self.target_se)
+        object.__setattr__(self, "target_se", float(self.target_se))
+        m = self.min_per_design
+        if isinstance(m, bool) or not isinstance(m, int) or m < 2:
+            raise ParameterError("min_per_design", "an integer >= 2 (phantoms before the SE is first checked)", m)
+        b = self.batch_size
+        if isinstance(b, bool) or not isinstance(b, int) or b < 1:
+            raise ParameterError("batch_size", "an integer >= 1 (phantoms added per step)", b)

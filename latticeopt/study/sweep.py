@@ -144,6 +144,7 @@ class SweepResult:
     outputs: dict = field(default_factory=dict)
     report: tuple[str, ...] = ()
     multilevel: object = None  # a MultilevelRun when the study has [multilevel]; evaluations are then coarse
+    adaptive: object = None  # an AdaptiveRun when [phantoms] has target_se; evaluations are then those made
 
     @property
     def failed(self) -> int:
@@ -192,12 +193,17 @@ def run_sweep(study: Study, evaluate: Callable | None = None, *, jobs: int | Non
                                                     "settings_key": settings.key}, indent=1, default=str))
         run = dict(jobs=study.jobs if jobs is None else jobs, backend=backend, scheduler=scheduler,
                    progress=progress, retry_failed=retry_failed)
-        ml = None
+        ml = ad = None
         if study.multilevel is not None:  # coarse on every phantom, fine on a nested subset
             from .multilevel_sweep import run_multilevel
 
             ml = run_multilevel(study, settings, out, evaluate, **run)
             evaluations, computed = ml.coarse, ml.computed_coarse + ml.computed_fine
+        elif study.adaptive is not None:  # per design a prefix of one common order, until its SE meets the target
+            from .adaptive_sweep import run_adaptive
+
+            ad = run_adaptive(study, settings, out, evaluate, **run)
+            evaluations, computed = ad.rows(), ad.computed
         else:
             evaluations, computed = evaluate_designs(study.designs, study.phantoms, settings, out, evaluate,
                                                      label=study.name, **run)
@@ -206,6 +212,10 @@ def run_sweep(study: Study, evaluate: Callable | None = None, *, jobs: int | Non
             from .multilevel_report import write_multilevel_outputs
 
             files, report = write_multilevel_outputs(study, ml, out)
+        elif outputs and ad is not None:
+            from .adaptive_report import write_adaptive_outputs
+
+            files, report = write_adaptive_outputs(study, ad, out)
         elif outputs:
             from .report import write_outputs
 
@@ -213,7 +223,7 @@ def run_sweep(study: Study, evaluate: Callable | None = None, *, jobs: int | Non
     total = len(evaluations) + (len(ml.fine) if ml is not None else 0)
     result = SweepResult(study=study, settings=settings, out_dir=out, evaluations=evaluations, computed=computed,
                          skipped=total - computed, seconds=time.perf_counter() - t_start, outputs=files,
-                         report=tuple(report), multilevel=ml)
+                         report=tuple(report), multilevel=ml, adaptive=ad)
     if evaluations and result.failed == len(evaluations):
         raise AllFailedError(all_failed_message(evaluations, computed, out, "results.csv" if outputs else None),
                              result)
