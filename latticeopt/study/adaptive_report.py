@@ -19,7 +19,7 @@ from pathlib import Path
 
 from .adaptive_sweep import AdaptiveRun, mean_se
 from .config import Study
-from .report import _fmt, _value, write_csv
+from .report import _fmt, _value, write_tables_and_figures
 
 __all__ = ["adaptive_summary", "paired_difference", "write_adaptive_outputs"]
 
@@ -100,17 +100,10 @@ def write_adaptive_outputs(study: Study, run: AdaptiveRun, out: Path) -> tuple[d
     lines : list of str
         The text report (also in ``report.txt``).
     """
-    from . import plots
-
     out = Path(out)
     ad = study.adaptive
     summary = adaptive_summary(study, run)
-    files = {"results": write_csv(out / "results.csv", _result_rows(study, run)),
-             "summary": write_csv(out / "summary.csv", summary),
-             "lines_plot": plots.plot_lines(study, summary, out / "vrel_lines.png")}
-    heat = plots.plot_heatmap(study, summary, out / "vrel_heatmap.png")
-    if heat is not None:
-        files["heatmap"] = heat
+    files = write_tables_and_figures(study, _result_rows(study, run), summary, out)
     nph = len(study.phantoms)
     used = [run.n[i] for i in run.compared]
     lines = [f"{study.name}: {len(study.designs)} designs x up to {nph} phantoms; adaptive counts: "

@@ -33,6 +33,7 @@ import numpy as np
 
 from .config import Study
 from .multilevel import fine_order
+from .multilevel_sweep import run_prefixes
 from .settings import AdaptiveSettings, EvalSettings
 from .store import Evaluation
 
@@ -143,8 +144,6 @@ def run_adaptive(study: Study, settings: EvalSettings, out_dir, evaluate: Callab
     out_dir, evaluate, jobs, backend, scheduler, progress, retry_failed
         As in :func:`latticeopt.study.sweep.evaluate_designs`.
     """
-    from .sweep import evaluate_designs  # sweep dispatches here: import at call time
-
     ad = study.adaptive
     run = dict(evaluate=evaluate, jobs=jobs, backend=backend, scheduler=scheduler, progress=progress,
                retry_failed=retry_failed)
@@ -166,15 +165,8 @@ def run_adaptive(study: Study, settings: EvalSettings, out_dir, evaluate: Callab
                 want[i] = nxt
         if not want:
             break
-        for m in sorted(set(want.values())):  # designs asking for the same prefix run together
-            group = [i for i in want if want[i] == m]
-            rows, done = evaluate_designs([study.designs[i] for i in group], [study.phantoms[j] for j in order[:m]],
-                                          settings, out_dir, label=f"{study.name} ({m} phantoms)", **run)
-            computed += done
-            for g, i in enumerate(group):
-                for k, j in enumerate(order[:m]):
-                    evals[(i, j)] = rows[g * m + k]
-                n[i] = m
+        computed += run_prefixes(study, want, order, settings, out_dir, evals, n, run,
+                                 label=lambda m: f"{study.name} ({m} phantoms)")
         log.info("%s: phantoms per design %s", study.name, sorted({n[i] for i in compared}))
     compared, order = _state(nd, full, evals)
     counts = tuple(min(n[i], len(order)) if i in compared else 0 for i in range(nd))

@@ -24,7 +24,7 @@ import numpy as np
 from .config import Study
 from .multilevel import multilevel_estimate
 from .multilevel_sweep import MultilevelRun
-from .report import _fmt, _value, write_csv
+from .report import _fmt, _value, write_tables_and_figures
 
 __all__ = ["multilevel_summary", "paired_difference", "write_multilevel_outputs"]
 
@@ -102,17 +102,10 @@ def write_multilevel_outputs(study: Study, run: MultilevelRun, out: Path) -> tup
     lines : list of str
         The text report (also in ``report.txt``).
     """
-    from . import plots
-
     out = Path(out)
     ml = study.multilevel
     summary = multilevel_summary(study, run)
-    files = {"results": write_csv(out / "results.csv", _result_rows(study, run)),
-             "summary": write_csv(out / "summary.csv", summary),
-             "lines_plot": plots.plot_lines(study, summary, out / "vrel_lines.png")}
-    heat = plots.plot_heatmap(study, summary, out / "vrel_heatmap.png")
-    if heat is not None:
-        files["heatmap"] = heat
+    files = write_tables_and_figures(study, _result_rows(study, run), summary, out)
     nph = len(study.phantoms)
     c, f = run.coarse_settings.mesh, run.fine_settings.mesh
     lines = [f"{study.name}: {len(study.designs)} designs x {nph} phantoms; two-level estimator: coarse mesh "

@@ -94,6 +94,30 @@ def _arrays(study, coarse, fine, used, order, i, n):
     return c, f, strata
 
 
+def run_prefixes(study: Study, want: dict, order, settings: EvalSettings, out_dir, into: dict, n, run: dict,
+                 label: Callable[[int], str]) -> int:
+    """Evaluate design ``i`` on the first ``want[i]`` phantoms of ``order`` for every ``i`` in ``want``.
+
+    Designs asking for the same prefix run together (one :func:`~.sweep.evaluate_designs` call: phantoms
+    already stored are read, the rest computed). Each evaluation goes to ``into[(i, j)]`` (design index, phantom
+    index) and the prefix length to ``n[i]``; ``run`` holds the executor arguments of ``evaluate_designs`` and
+    ``label(m)`` names the progress bar of an ``m``-phantom prefix. Returns how many evaluations were computed.
+    """
+    from .sweep import evaluate_designs  # sweep dispatches here: import at call time
+
+    computed = 0
+    for m in sorted(set(want.values())):
+        group = [i for i in want if want[i] == m]
+        rows, done = evaluate_designs([study.designs[i] for i in group], [study.phantoms[j] for j in order[:m]],
+                                      settings, out_dir, label=label(m), **run)
+        computed += done
+        for g, i in enumerate(group):
+            for k, j in enumerate(order[:m]):
+                into[(i, j)] = rows[g * m + k]
+            n[i] = m
+    return computed
+
+
 def run_multilevel(study: Study, settings: EvalSettings, out_dir, evaluate: Callable, *, jobs: int = 1,
                    backend: str = "local", scheduler=None, progress: bool = False,
                    retry_failed: bool = False) -> MultilevelRun:
@@ -140,15 +164,8 @@ def run_multilevel(study: Study, settings: EvalSettings, out_dir, evaluate: Call
                 want[i] = nxt
         if not want:
             break
-        for m in sorted(set(want.values())):  # designs asking for the same prefix run together
-            group = [i for i in want if want[i] == m]
-            evals, done = evaluate_designs([study.designs[i] for i in group], [study.phantoms[j] for j in order[:m]],
-                                           settings, out_dir, label=f"{study.name} (fine, {m} phantoms)", **run)
-            computed_fine += done
-            for g, i in enumerate(group):
-                for k, j in enumerate(order[:m]):
-                    fine[(i, j)] = evals[g * m + k]
-                n[i] = m
+        computed_fine += run_prefixes(study, want, order, settings, out_dir, fine, n, run,
+                                      label=lambda m: f"{study.name} (fine, {m} phantoms)")
         log.info("%s: fine phantoms per design %s", study.name, sorted(set(n.values())))
     estimates: list[MultilevelEstimate | None] = [None] * nd
     for i in compared:

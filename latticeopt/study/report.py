@@ -252,6 +252,20 @@ def _comparison_lines(study: Study, evaluations: Sequence[Evaluation]) -> tuple[
     return lines, rows
 
 
+def write_tables_and_figures(study: Study, result_rows: Sequence[dict], summary: Sequence[dict], out: Path) -> dict:
+    """``results.csv``, ``summary.csv``, the V_rel line figure and (two-field grids) the heat map of a grid
+    study whose rows and per-design summary an estimator has already computed; returns output name -> path."""
+    from . import plots  # matplotlib only when figures are drawn
+
+    files = {"results": write_csv(out / "results.csv", result_rows),
+             "summary": write_csv(out / "summary.csv", summary),
+             "lines_plot": plots.plot_lines(study, summary, out / "vrel_lines.png")}
+    heat = plots.plot_heatmap(study, summary, out / "vrel_heatmap.png")
+    if heat is not None:
+        files["heatmap"] = heat
+    return files
+
+
 def write_outputs(study: Study, evaluations: Sequence[Evaluation], out: Path) -> tuple[dict, list[str]]:
     """Write the tables, figures and ``report.txt`` of a study into ``out``.
 
