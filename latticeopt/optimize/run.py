@@ -17,19 +17,13 @@ from ..errors import AllFailedError, LatticeoptError, ParameterError
 from ..study.imaging import FIGURES, ReconstructorCache, probe_image_figures, probe_presses
 from ..study.objectives import Objective
 from ..study.phantoms import Phantom
+from ..study.report import mean_se
 from ..study.settings import EvalSettings
 from ..study.store import folder_lock
 from .driver import Assessment, Optimum, Step, minimize
 from .problem import Optimization
 
 __all__ = ["OptimizationResult", "assess_design", "run_optimization"]
-
-
-def _mean_se(values: Sequence[float]) -> tuple[float, float]:
-    x = np.asarray(values, dtype=float)
-    if x.size == 0:
-        return math.nan, math.nan
-    return float(x.mean()), float(x.std(ddof=1) / math.sqrt(x.size)) if x.size > 1 else math.nan
 
 
 def _image_figures(design: LatticeDesign, evs, probes: Sequence[Phantom], objective: Objective,
@@ -74,7 +68,7 @@ def assess_design(design: LatticeDesign, *, phantoms: Sequence[Phantom], probes:
     rnd, prb = np.asarray(vals[:n]), np.asarray(vals[n:])
     cc, figures = _image_figures(design, evs[n:], probes, objective, settings, images)
     value = objective.evaluate(rnd, prb, cc)  # NaN (infeasible) if any phantom failed
-    mean, se = _mean_se(rnd[np.isfinite(rnd)])
+    mean, se = mean_se(rnd[np.isfinite(rnd)])
     stretch = None
     if need_stretch:
         got = [e.extra.get("max_hydrogel_stretch") for e in evs if e.ok]

@@ -17,9 +17,9 @@ import json
 import math
 from pathlib import Path
 
-from .adaptive_sweep import AdaptiveRun, mean_se
+from .adaptive_sweep import AdaptiveRun
 from .config import Study
-from .report import _fmt, _value, write_tables_and_figures
+from .report import _fmt, _value, mean_se, write_tables_and_figures
 
 __all__ = ["adaptive_summary", "paired_difference", "write_adaptive_outputs"]
 

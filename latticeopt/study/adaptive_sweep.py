@@ -25,7 +25,6 @@ those a plain sweep of the same study would reuse.
 from __future__ import annotations
 
 import logging
-import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
@@ -34,10 +33,11 @@ import numpy as np
 from .config import Study
 from .multilevel import fine_order
 from .multilevel_sweep import run_prefixes
+from .report import mean_se
 from .settings import AdaptiveSettings, EvalSettings
 from .store import Evaluation
 
-__all__ = ["AdaptiveRun", "mean_se", "next_count", "phantom_order", "run_adaptive"]
+__all__ = ["AdaptiveRun", "next_count", "phantom_order", "run_adaptive"]
 
 log = logging.getLogger(__name__)
 
@@ -45,14 +45,6 @@ log = logging.getLogger(__name__)
 def phantom_order(study: Study) -> tuple[int, ...]:
     """Positions in ``study.phantoms`` in the order designs take them (touch counts interleaved)."""
     return tuple(int(j) for j in fine_order(np.array([p.n_touches for p in study.phantoms])))
-
-
-def mean_se(values: Sequence[float]) -> tuple[float, float]:
-    """Mean and standard error ``std(ddof=1) / sqrt(n)`` (NaN SE for fewer than two values)."""
-    x = np.asarray(values, dtype=float)
-    if x.size == 0:
-        return math.nan, math.nan
-    return float(x.mean()), float(np.std(x, ddof=1) / math.sqrt(x.size)) if x.size > 1 else math.nan
 
 
 def next_count(values: Sequence[float], available: int, adaptive: AdaptiveSettings) -> int:

@@ -36,11 +36,12 @@ import numpy as np
 from .config import Study
 from .store import Evaluation
 
-__all__ = ["best_design", "comparison_set", "press_curves", "press_ratios", "results_rows", "summarize", "write_csv",
-           "write_outputs"]
+__all__ = ["best_design", "comparison_set", "mean_se", "press_curves", "press_ratios", "results_rows", "summarize",
+           "write_csv", "write_outputs", "write_tables_and_figures"]
 
 
-def _mean_se(values: Sequence[float]) -> tuple[float, float]:
+def mean_se(values: Sequence[float]) -> tuple[float, float]:
+    """Mean and standard error ``std(ddof=1) / sqrt(n)`` (NaN SE for fewer than two values, NaN both for none)."""
     x = np.asarray(values, dtype=float)
     if x.size == 0:
         return math.nan, math.nan
@@ -114,12 +115,12 @@ def summarize(study: Study, evaluations: Sequence[Evaluation]) -> list[dict]:
     for i, (design, rows) in enumerate(zip(study.designs, _by_design(study, evaluations))):
         used = cmp["used"] if i in compared else []
         n_ok = sum(e.ok for e in rows)
-        mean, se = _mean_se([rows[j].v_rel for j in used])
+        mean, se = mean_se([rows[j].v_rel for j in used])
         row = {f: _value(design, f) for f in study.grid_fields}
         row.update(v_rel_mean=mean, v_rel_se=se, n=len(used), n_ok=n_ok, failed=len(rows) - n_ok)
         for k in counts:
             vals = [rows[j].v_rel for j in used if study.phantoms[j].n_touches == k]
-            row[f"v_rel_mean_{k}touch"] = _mean_se(vals)[0]
+            row[f"v_rel_mean_{k}touch"] = mean_se(vals)[0]
         row["design_key"] = design.content_hash()
         out.append(row)
     return out
@@ -144,7 +145,7 @@ def best_design(study: Study, evaluations: Sequence[Evaluation]) -> dict | None:
     if len(order) > 1:
         a, b = groups[order[0]], groups[order[1]]
         diffs = [a[j].v_rel - b[j].v_rel for j in cmp["used"]]
-        d, se = _mean_se(diffs)
+        d, se = mean_se(diffs)
         best.update(runner_up=study.designs[order[1]], runner_up_summary=summary[order[1]], paired_diff=d,
                     paired_se=se, paired_n=len(diffs))
     return best
