@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from calllog import logged_calls, record_call
 
 from latticeopt.errors import ConvergenceError, ParameterError
 from latticeopt.study.adaptive_sweep import next_count
@@ -44,13 +45,7 @@ def _value(design, phantom) -> float:
 
 def fake_spread(design, phantom, settings) -> dict:
     """TEST DOUBLE: V_rel with a design-dependent spread over phantoms; logs every call."""
-    log = os.environ.get(LOG_ENV)
-    if log:
-        stop = int(os.environ.get(STOP_ENV, "0"))
-        if stop and os.path.exists(log) and len(Path(log).read_text().splitlines()) >= stop:
-            raise KeyboardInterrupt("test interrupt")
-        with open(log, "a") as fh:
-            fh.write(f"{design.content_hash()} {phantom.key}\n")
+    record_call(f"{design.content_hash()} {phantom.key}", LOG_ENV, STOP_ENV)
     return {"v_rel": _value(design, phantom)}
 
 
@@ -83,10 +78,6 @@ def _study(tmp_path: Path, out="out", overrides=(), extra=None, tail=""):
     return load_study(path, overrides)
 
 
-def _calls(path: Path) -> list[str]:
-    return path.read_text().splitlines() if path.exists() else []
-
-
 def _se(x) -> float:
     return float(np.std(x, ddof=1) / math.sqrt(len(x)))
 
@@ -112,7 +103,7 @@ def test_low_spread_stops_early_high_spread_runs_to_the_maximum(tmp_path, monkey
     for i, design in enumerate(study.designs):
         values = [_value(design, study.phantoms[j]) for j in order]
         assert ad.n[i] == _expected_count(values)
-    calls = _calls(tmp_path / "calls.log")
+    calls = logged_calls(tmp_path / "calls.log")
     assert len(calls) == len(set(calls)) == sum(ad.n) == res.computed  # every evaluation once, nothing extra
     with open(res.outputs["summary"]) as fh:
         summary = list(csv.DictReader(fh))
@@ -164,15 +155,15 @@ def test_interrupted_run_resumes_without_recomputing(tmp_path, monkeypatch):
     monkeypatch.setenv(STOP_ENV, str(stop))
     with pytest.raises(KeyboardInterrupt):
         run_sweep(_study(tmp_path), fake_spread, progress=False)
-    assert len(_calls(log)) == stop
+    assert len(logged_calls(log)) == stop
     monkeypatch.delenv(STOP_ENV)
     res = run_sweep(_study(tmp_path), fake_spread, progress=False)
-    calls = _calls(log)
+    calls = logged_calls(log)
     assert len(calls) == len(set(calls)) == total  # nothing computed twice
     assert res.computed == total - stop
     assert res.adaptive.n == ref.n
     again = run_sweep(_study(tmp_path), fake_spread, progress=False)
-    assert again.computed == 0 and len(_calls(log)) == total
+    assert again.computed == 0 and len(logged_calls(log)) == total
     assert again.report[2:] == res.report[2:]  # the same numbers (line 2 counts what was computed now)
 
 

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from calllog import logged_calls, record_call
 
 from latticeopt.errors import ConvergenceError
 from latticeopt.study.config import load_study
@@ -42,13 +43,7 @@ def _value(design, phantom, size_mm: float) -> float:
 
 def fake_two_level(design, phantom, settings) -> dict:
     """TEST DOUBLE: fine (mesh <= 3 mm) and coarse values of one phantom; logs every call."""
-    log = os.environ.get(LOG_ENV)
-    if log:
-        stop = int(os.environ.get(STOP_ENV, "0"))
-        if stop and os.path.exists(log) and len(Path(log).read_text().splitlines()) >= stop:
-            raise KeyboardInterrupt("test interrupt")
-        with open(log, "a") as fh:
-            fh.write(f"{settings.mesh.size_mm} {design.content_hash()} {phantom.key}\n")
+    record_call(f"{settings.mesh.size_mm} {design.content_hash()} {phantom.key}", LOG_ENV, STOP_ENV)
     return {"v_rel": _value(design, phantom, settings.mesh.size_mm)}
 
 
@@ -84,10 +79,6 @@ def _study(tmp_path: Path, pilot=6, factor=1.1, out="out", overrides=()):
     return load_study(path, overrides)
 
 
-def _calls(path: Path) -> list[str]:
-    return path.read_text().splitlines() if path.exists() else []
-
-
 def test_estimates_match_the_statistics_and_meet_the_criterion(tmp_path, monkeypatch):
     monkeypatch.setenv(LOG_ENV, str(tmp_path / "calls.log"))
     study = _study(tmp_path)
@@ -97,7 +88,7 @@ def test_estimates_match_the_statistics_and_meet_the_criterion(tmp_path, monkeyp
     strata = np.array([p.n_touches for p in study.phantoms])
     order = fine_order(strata)
     assert list(ml.order) == [int(j) for j in order]  # nothing failed: every phantom is used
-    calls = _calls(tmp_path / "calls.log")
+    calls = logged_calls(tmp_path / "calls.log")
     assert len(calls) == len(set(calls)) == 2 * nph + sum(ml.n_fine)  # every evaluation once
     with open(res.outputs["summary"]) as fh:
         summary = list(csv.DictReader(fh))
@@ -125,7 +116,7 @@ def test_estimates_match_the_statistics_and_meet_the_criterion(tmp_path, monkeyp
     report = (res.out_dir / "report.txt").read_text()
     assert "two-level estimator" in report and "best minus runner-up" in report
     again = run_sweep(_study(tmp_path), fake_two_level, progress=False)
-    assert again.computed == 0 and len(_calls(tmp_path / "calls.log")) == len(calls)
+    assert again.computed == 0 and len(logged_calls(tmp_path / "calls.log")) == len(calls)
     assert again.multilevel.estimates == ml.estimates
 
 
@@ -151,10 +142,10 @@ def test_interrupted_run_resumes_without_recomputing(tmp_path, monkeypatch):
     monkeypatch.setenv(STOP_ENV, str(stop))
     with pytest.raises(KeyboardInterrupt):
         run_sweep(_study(tmp_path), fake_two_level, progress=False)
-    assert len(_calls(log)) == stop
+    assert len(logged_calls(log)) == stop
     monkeypatch.delenv(STOP_ENV)
     res = run_sweep(_study(tmp_path), fake_two_level, progress=False)
-    calls = _calls(log)
+    calls = logged_calls(log)
     assert len(calls) == len(set(calls)) == total  # nothing computed twice
     assert res.computed == total - stop
     assert res.multilevel.estimates == ref.estimates and res.multilevel.n_fine == ref.n_fine

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from calllog import logged_calls, record_call
 
 from latticeopt.design import LatticeDesign
 from latticeopt.errors import (
@@ -63,13 +64,7 @@ def analytic_evaluate(design, phantom, settings) -> dict:
     Logs every call to ``$LATTICEOPT_TEST_OPT_LOG``; raises KeyboardInterrupt (like Ctrl-C) once the log has
     ``$LATTICEOPT_TEST_OPT_INTERRUPT_AFTER`` lines.
     """
-    log = os.environ.get(LOG_ENV)
-    if log:
-        done = len(Path(log).read_text().splitlines()) if Path(log).exists() else 0
-        if os.environ.get(STOP_ENV) and done >= int(os.environ[STOP_ENV]):
-            raise KeyboardInterrupt("test double: interrupted")
-        with open(log, "a") as fh:
-            fh.write(f"{design.content_hash()} {phantom.key}\n")
+    record_call(f"{design.content_hash()} {phantom.key}", LOG_ENV, STOP_ENV)
     v = _f(design.width_mm, design.thickness_mm) * _phantom_factor(phantom)
     return {"v_rel": v, "forces_N": [0.1] * phantom.n_touches, "timings": {"double": 0.0},
             "max_hydrogel_stretch": 1.0 + 0.1 * design.width_mm + 0.01 * sum(t.depth_mm for t in phantom.touches)}
@@ -222,10 +217,6 @@ def test_shipped_optimize_square_study():
 
 
 # -- the store path with the test double ---------------------------------------------------------------------
-def _log_lines(path: Path) -> list[str]:
-    return path.read_text().splitlines() if path.exists() else []
-
-
 def test_store_run_improves_on_start_writes_outputs_and_reuses(tmp_path, monkeypatch):
     monkeypatch.setenv(LOG_ENV, str(tmp_path / "evals.log"))
     opt = load_optimization(_write(tmp_path))
@@ -241,7 +232,7 @@ def test_store_run_improves_on_start_writes_outputs_and_reuses(tmp_path, monkeyp
     assert res.paired[1] == pytest.approx(np.std(diffs, ddof=1) / math.sqrt(3), rel=1e-9)
     designs = {s.assessment.design_key for s in res.history}
     with ResultStore(opt.study.out_dir, readonly=True) as store:
-        assert len(store) == 3 * len(designs) == len(_log_lines(tmp_path / "evals.log"))
+        assert len(store) == 3 * len(designs) == len(logged_calls(tmp_path / "evals.log"))
         assert {e.design_key for e in store.rows()} == designs
     rows = list(csv.DictReader(open(res.outputs["history"])))
     assert len(rows) == len(res.history) and float(rows[0]["width_mm"]) == 2.0
@@ -251,7 +242,7 @@ def test_store_run_improves_on_start_writes_outputs_and_reuses(tmp_path, monkeyp
     assert saved["optimum"]["x"] == best.x and "optimum:" in "\n".join(res.report)
     # the same run again: every design is read from the store, the same path is taken
     again = run_optimization(load_optimization(tmp_path / "opt.toml"), analytic_evaluate)
-    assert again.computed == 0 and len(_log_lines(tmp_path / "evals.log")) == 3 * len(designs)
+    assert again.computed == 0 and len(logged_calls(tmp_path / "evals.log")) == 3 * len(designs)
     assert [(s.x, s.score) for s in again.history] == [(s.x, s.score) for s in res.history]
 
 
@@ -262,14 +253,14 @@ def test_interrupted_run_resumes_without_recomputing(tmp_path, monkeypatch):
     path = _write(tmp_path)
     with pytest.raises(KeyboardInterrupt):
         run_optimization(load_optimization(path), analytic_evaluate)
-    first = set(_log_lines(log1))
+    first = set(logged_calls(log1))
     assert len(first) == 14
     with ResultStore(tmp_path / "out", readonly=True) as store:
         assert len(store) == 14 and store.integrity_check() == "ok"
     monkeypatch.setenv(LOG_ENV, str(log2))
     monkeypatch.delenv(STOP_ENV)
     resumed = run_optimization(load_optimization(path), analytic_evaluate)
-    second = set(_log_lines(log2))
+    second = set(logged_calls(log2))
     assert not first & second  # nothing computed twice
     assert resumed.computed == len(second)
     monkeypatch.delenv(LOG_ENV)
@@ -288,7 +279,7 @@ def test_path_over_stored_sweep_map_and_sweep_rows_reused(tmp_path, monkeypatch)
     sweep.write_text(text.split("[optimize]")[0].replace('name = "opt"', 'name = "grid"')
                      + "[grid]\nthickness_mm = [1.5, 3.0, 4.5]\nwidth_mm = [2.0, 4.0, 6.0]\n")
     run_sweep(load_study(sweep), analytic_evaluate, progress=False)
-    n_sweep = len(_log_lines(tmp_path / "evals.log"))
+    n_sweep = len(logged_calls(tmp_path / "evals.log"))
     assert n_sweep == 27
     res = run_optimization(load_optimization(_write(tmp_path)), analytic_evaluate)
     assert res.history[0].assessment.computed == 0  # the start (2, 4.5) is a sweep design: read, not computed
