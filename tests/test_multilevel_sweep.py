@@ -194,3 +194,23 @@ def test_a_fine_failure_leaves_the_phantom_out_for_every_design_at_both_levels(t
         assert c.tolist() == [_value(design, p, 4.0) for p in kept]
     with open(res.outputs["summary"]) as fh:
         assert [int(r["failed_fine"]) for r in csv.DictReader(fh)] == [0, 1]
+
+
+def test_coarse_mesh_changes_only_the_keys_given_and_keeps_the_rest_of_the_fine_mesh(tmp_path):
+    fine = {"mesher": "grid", "size_mm": 2.0, "channel_cells": 2, "layer_cells": 3, "electrode_edges": False}
+    tail = "\n".join(f"{k} = {str(v).lower() if isinstance(v, bool) else repr(v)}" for k, v in fine.items())
+    text = STUDY.format(out=(tmp_path / "out").as_posix(), pilot=6, factor=1.1).replace(
+        "[mesh]\nsize_mm = 2.0", "[mesh]\n" + tail.replace("'", '"'))
+    path = tmp_path / "study.toml"
+    path.write_text(text)
+    ml = load_study(path).multilevel
+    assert (ml.coarse.size_mm, ml.coarse.channel_cells) == (4.0, 1)
+    assert (ml.coarse.mesher, ml.coarse.layer_cells, ml.coarse.electrode_edges) == ("grid", 3, False)
+    path.write_text(text.replace("coarse = { size_mm = 4.0, channel_cells = 1 }", "coarse = { size_mm = 3.0 }"))
+    ml = load_study(path).multilevel
+    assert (ml.coarse.size_mm, ml.coarse.channel_cells, ml.coarse.layer_cells) == (3.0, 2, 3)
+    path.write_text(text.replace("\n[multilevel]\n", "\n[multilevel]\n").replace(
+        "coarse = { size_mm = 4.0, channel_cells = 1 }\n", ""))
+    ml = load_study(path).multilevel  # no coarse key: 4 mm, 1 channel cell, the rest from [mesh]
+    assert (ml.coarse.size_mm, ml.coarse.channel_cells, ml.coarse.layer_cells, ml.coarse.electrode_edges) == (
+        4.0, 1, 3, False)

@@ -215,15 +215,18 @@ def _multilevel(where: _Where, tab: dict, fine: MeshSettings) -> MultilevelSetti
     """The ``[multilevel]`` table: ``coarse`` (a mesh table), ``pilot``, ``se_factor``."""
     _known(where, tab, _MULTILEVEL_KEYS, "multilevel")
     kwargs = dict(tab)
+    # the coarse mesh is the fine one with the keys given changed: a coarse level that also switched mesher,
+    # layer cells or electrode edges unasked would correlate less with the fine one and cost more
+    coarse = {"size_mm": 4.0, "channel_cells": 1}
     if "coarse" in tab:
         coarse = _table(where, tab, "coarse") if isinstance(tab["coarse"], Mapping) else tab["coarse"]
         if not isinstance(coarse, Mapping):
             raise where.error("multilevel.coarse", "a mesh table, e.g. { size_mm = 4.0, channel_cells = 1 }", coarse)
         _known(where, coarse, _MESH_KEYS, "multilevel.coarse")
-        try:
-            kwargs["coarse"] = MeshSettings(**coarse)
-        except ParameterError as exc:
-            raise where.wrap(f"multilevel.coarse.{exc.name}", exc) from None
+    try:
+        kwargs["coarse"] = dataclasses.replace(fine, **coarse)
+    except ParameterError as exc:
+        raise where.wrap(f"multilevel.coarse.{exc.name}", exc) from None
     try:
         ml = MultilevelSettings(**kwargs)
     except ParameterError as exc:

@@ -161,7 +161,9 @@ class MultilevelSettings:
     Parameters
     ----------
     coarse
-        The coarse mesh (the study's ``[mesh]`` is the fine one); it must differ from the fine mesh.
+        The coarse mesh (the study's ``[mesh]`` is the fine one); it must differ from the fine mesh. In a study
+        file, ``coarse`` lists only the ``[mesh]`` keys that change (default ``size_mm = 4.0, channel_cells = 1``);
+        the others are the fine mesh's.
     pilot
         Phantoms evaluated fine first (raised so that every touch count has two), >= 2.
     se_factor
