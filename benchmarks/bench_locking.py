@@ -16,8 +16,10 @@ triangulated with Triangle, fine within 1.4 a of the axis, and extruded: paired-
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
+import tempfile
 import time
 
 for _v in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
@@ -59,9 +61,11 @@ def tetwild_layer(fine_mm: float):
     bg = block_mesh(np.linspace(0, SIDE, 61), np.linspace(0, SIDE, 61), np.linspace(0, H, 3))
     reach = np.max(np.abs(bg.nodes_mm[:, :2] - SIDE / 2), axis=1) - 1.4 * A
     size = np.clip(fine_mm + 0.3 * np.maximum(reach, 0.0), fine_mm, 4.0)
-    pts, tets = pytetwild.tetrahedralize(v, f, edge_length_abs=4.0, epsilon=1e-4, quiet=True, loglevel=6,
-                                         num_threads=1, bg_vertices=np.array(bg.nodes_mm, order="C"),
-                                         bg_tets=np.array(bg.tets, dtype=np.int32, order="C"), bg_values=size)
+    # fTetWild leaves __tracked_surface.stl in its working directory: run it in a scratch one
+    with tempfile.TemporaryDirectory(prefix="bench-locking-") as tmp, contextlib.chdir(tmp):
+        pts, tets = pytetwild.tetrahedralize(v, f, edge_length_abs=4.0, epsilon=1e-4, quiet=True, loglevel=6,
+                                             num_threads=1, bg_vertices=np.array(bg.nodes_mm, order="C"),
+                                             bg_tets=np.array(bg.tets, dtype=np.int32, order="C"), bg_values=size)
     pts, tets = np.array(pts, dtype=float), np.array(tets, dtype=np.int64)
     tol = 1e-4 * np.sqrt(2 * SIDE ** 2 + H ** 2)
     for axis, hi in ((0, SIDE), (1, SIDE), (2, H)):
