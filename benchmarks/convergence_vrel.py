@@ -2,6 +2,8 @@
 
     python benchmarks/convergence_vrel.py [--sizes 4 2.8 2 1.4] [--phantoms 6] [--jobs 2]
     python benchmarks/convergence_vrel.py --levels 2.8:2:2 2:2:2 1.4:3:3 --width 2 --thickness 1
+    python benchmarks/convergence_vrel.py --press --phantoms 0 --levels 2.8:2:2:0 2:2:2:0 1.4:3:3:0 \
+        --physics hydrogel_poisson_ratio=0.4999
     python benchmarks/convergence_vrel.py --pattern hexagonal --rim none --width 3 --press --phantoms 4 \
         --levels 2.8:2:2 2:2:2 2:3:3 1.4:3:3
 
@@ -11,7 +13,8 @@ prints mean V_rel per mesh, the relative change between successive meshes (mean 
 per-phantom relative change, and of the mean) and the seconds per phantom, as a Markdown table, and at the
 end the same changes against the last (finest) level. ``--levels SIZE:CHANNEL_CELLS:LAYER_CELLS`` replaces the
 ladder by explicit meshes. ``--press`` adds the press study's centre press (50, 50), r 8.75 mm, 4 mm deep, as
-the first row, and ``--per-phantom`` prints every phantom's V_rel per level.
+the first row, ``--per-phantom`` prints every phantom's V_rel per level, and ``--physics KEY=VALUE`` (repeatable,
+any ``[physics]`` key, as on the command line) sets the model.
 """
 
 from __future__ import annotations
@@ -27,7 +30,8 @@ for _var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
 import numpy as np  # noqa: E402
 
 from latticeopt import LatticeDesign, MeshSettings  # noqa: E402
-from latticeopt.coupled import CoupledModel  # noqa: E402
+from latticeopt.cli._common import add_physics_arg, physics_from_args  # noqa: E402
+from latticeopt.coupled import CoupledModel, PhysicsSettings  # noqa: E402
 from latticeopt.study.phantoms import Phantom, random_phantom  # noqa: E402
 from latticeopt.touches import Touch  # noqa: E402
 
@@ -51,8 +55,8 @@ def _level(text: str) -> MeshSettings:
 
 
 def _run(args):
-    mesh_settings, phantoms, design = args
-    model = CoupledModel(design, mesh_settings)
+    mesh_settings, phantoms, design, physics = args
+    model = CoupledModel(design, mesh_settings, physics)
     out = []
     for ph in phantoms:
         t0 = time.perf_counter()
@@ -75,13 +79,16 @@ def main() -> None:
     ap.add_argument("--levels", type=_level, nargs="+", default=None,
                     help="explicit meshes SIZE:CHANNEL_CELLS:LAYER_CELLS[:0] (replaces --sizes; a trailing :0 "
                          "leaves out the grid lines on electrode edges)")
+    add_physics_arg(ap)
     a = ap.parse_args()
+    physics = PhysicsSettings.from_dict(physics_from_args(a))
     levels = a.levels or [settings_for(size) for size in a.sizes]
     design = LatticeDesign(width_mm=a.width, thickness_mm=a.thickness, pattern=a.pattern, rim=a.rim)
     phantoms = [random_phantom(100.0, 1 + i % 3, i // 3, 2025) for i in range(a.phantoms)]
     if a.press:
         phantoms.insert(0, Phantom((Touch(50.0, 50.0, 8.75, 4.0),), index=0))
-    print(f"load average: {os.getloadavg()[0]:.2f}; {design.describe()}; {a.phantoms} phantoms")
+    print(f"load average: {os.getloadavg()[0]:.2f}; {design.describe()}; {a.phantoms} phantoms"
+          + (f"; physics {physics_from_args(a)}" if a.physics else ""))
     print("| size mm | channel cells | layer cells | electrode-edge lines | nodes | mean V_rel | change of mean | "
           "per-phantom change | s/phantom |")
     print("|---|---|---|---|---|---|---|---|---|")
@@ -90,7 +97,7 @@ def main() -> None:
     for ms in levels:
         chunks = [phantoms[i::a.jobs] for i in range(a.jobs)]
         with ProcessPoolExecutor(a.jobs) as ex:
-            parts = list(ex.map(_run, [(ms, c, design) for c in chunks]))
+            parts = list(ex.map(_run, [(ms, c, design, physics) for c in chunks if c]))
         vals = np.empty(len(phantoms))
         secs = []
         for j, (_, rows) in enumerate(parts):
