@@ -10,14 +10,11 @@ from __future__ import annotations
 import csv
 import dataclasses
 import math
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
-from calllog import logged_calls, record_call
+from doubles import logged_calls, record_call, run_cli
 
 from latticeopt.errors import ConvergenceError, ParameterError
 from latticeopt.study.adaptive_sweep import next_count
@@ -26,7 +23,6 @@ from latticeopt.study.multilevel import fine_order
 from latticeopt.study.settings import AdaptiveSettings
 from latticeopt.study.sweep import run_sweep
 
-TESTS = Path(__file__).parent
 LOG_ENV = "LATTICEOPT_TEST_AD_LOG"
 STOP_ENV = "LATTICEOPT_TEST_AD_STOP"  # interrupt (KeyboardInterrupt) once this many calls are logged
 SPREAD = {2: 0.001, 3: 0.012, 4: 0.05}  # amplitude of the per-phantom noise by width_mm
@@ -223,11 +219,9 @@ def test_settings_defaults_and_checks():
     assert next_count([0.0, 9.0], 2, ad) == 2  # every phantom run: done whatever the SE
 
 
-def _cli(tmp_path: Path, *extra: str) -> subprocess.CompletedProcess:
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(TESTS), os.environ.get("PYTHONPATH", "")])}
-    cmd = [sys.executable, "-m", "latticeopt", "sweep", str(tmp_path / "study.toml"), "--evaluate",
-           "test_adaptive_sweep:fake_spread", "--no-progress", "--jobs", "1", *extra]
-    return subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=120)
+def _cli(tmp_path: Path, *extra: str):
+    return run_cli("sweep", str(tmp_path / "study.toml"), "--evaluate", "test_adaptive_sweep:fake_spread",
+                   "--no-progress", "--jobs", "1", *extra)
 
 
 @pytest.mark.parametrize("setting, key", [("phantoms.target_se=-1", "--set phantoms.target_se"),

@@ -9,14 +9,11 @@ from __future__ import annotations
 import csv
 import dataclasses
 import math
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
-from calllog import logged_calls, record_call
+from doubles import logged_calls, record_call, run_cli
 
 from latticeopt.errors import ConvergenceError
 from latticeopt.study.config import load_study
@@ -24,7 +21,6 @@ from latticeopt.study.multilevel import fine_order, multilevel_estimate
 from latticeopt.study.store import ResultStore
 from latticeopt.study.sweep import run_sweep
 
-TESTS = Path(__file__).parent
 LOG_ENV = "LATTICEOPT_TEST_ML_LOG"
 STOP_ENV = "LATTICEOPT_TEST_ML_STOP"  # interrupt (KeyboardInterrupt) once this many calls are logged
 
@@ -151,11 +147,9 @@ def test_interrupted_run_resumes_without_recomputing(tmp_path, monkeypatch):
     assert res.multilevel.estimates == ref.estimates and res.multilevel.n_fine == ref.n_fine
 
 
-def _cli(tmp_path: Path, *extra: str) -> subprocess.CompletedProcess:
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(TESTS), os.environ.get("PYTHONPATH", "")])}
-    cmd = [sys.executable, "-m", "latticeopt", "sweep", str(tmp_path / "study.toml"), "--evaluate",
-           "test_multilevel_sweep:fake_two_level", "--no-progress", "--jobs", "1", *extra]
-    return subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=120)
+def _cli(tmp_path: Path, *extra: str):
+    return run_cli("sweep", str(tmp_path / "study.toml"), "--evaluate", "test_multilevel_sweep:fake_two_level",
+                   "--no-progress", "--jobs", "1", *extra)
 
 
 @pytest.mark.parametrize("setting, key", [("multilevel.pilot=1", "--set multilevel.pilot"),

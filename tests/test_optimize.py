@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from calllog import logged_calls, record_call
+from doubles import logged_calls, record_call
 
 from latticeopt.design import LatticeDesign
 from latticeopt.errors import (

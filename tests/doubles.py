@@ -1,14 +1,19 @@
-"""Call logs of the test doubles that stand in for the coupled model in sweep and optimizer tests.
+"""Plumbing shared by the test doubles that stand in for the coupled model in sweep and optimizer tests.
 
-A double appends one line per evaluation to the file named by an environment variable, so a test can count what
-was computed (and recomputed after a resume), and can simulate Ctrl-C once the log holds a given number of lines.
+Call logs: a double appends one line per evaluation to the file named by an environment variable, so a test
+can count what was computed (and recomputed after a resume), and can simulate Ctrl-C once the log holds a given
+number of lines.
 Environment variables, not arguments, because the sweep calls the double in worker processes and through the CLI.
 """
 
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
 from pathlib import Path
+
+TESTS = Path(__file__).parent
 
 
 def logged_calls(path) -> list[str]:
@@ -28,3 +33,11 @@ def record_call(line: str, log_env: str, stop_env: str | None = None) -> None:
         raise KeyboardInterrupt("test double: interrupted")
     with open(log, "a") as fh:
         fh.write(line + "\n")
+
+
+def run_cli(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
+    """``python -m latticeopt ARGS`` in a subprocess that can import the test modules (``--evaluate
+    test_module:double``); output captured as text."""
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(TESTS), os.environ.get("PYTHONPATH", "")])}
+    return subprocess.run([sys.executable, "-m", "latticeopt", *args], env=env, capture_output=True, text=True,
+                          timeout=timeout)
