@@ -66,6 +66,8 @@ def main() -> None:
     ap.add_argument("--replicates", type=int, default=4000)
     ap.add_argument("--seed", type=int, default=1)
     a = ap.parse_args()
+    if a.replicates < 2:
+        ap.error(f"--replicates: expected an integer >= 2, got {a.replicates}")
     rng = np.random.default_rng(a.seed)
     print(f"{a.replicates} replicates; min_per_design 30, batch_size 15, at most {MAX}")
     print("| V_rel distribution | target stops near | mean n | bias of the mean (plain SEs) | coverage of +-2 SE | "

@@ -49,7 +49,11 @@ import numpy as np  # noqa: E402
 
 from latticeopt import LatticeDesign  # noqa: E402
 from latticeopt.coupled import CoupledModel  # noqa: E402
-from latticeopt.errors import ConvergenceError, MeshError  # noqa: E402
+from latticeopt.errors import (  # noqa: E402
+    ConvergenceError,
+    MeshError,
+    ParameterError,  # noqa: E402
+)
 from latticeopt.mesh import mesh_design  # noqa: E402
 from latticeopt.study.config import load_study  # noqa: E402
 from latticeopt.study.multilevel import predicted_fine_count  # noqa: E402
@@ -229,9 +233,24 @@ def main() -> None:
     if "paper" in a.designs:
         a.designs = a.paper_designs
     mesh = paper.settings.mesh  # the converged mesh of the map
-    a.fine = dataclasses.replace(mesh, size_mm=mesh.size_mm if a.size is None else a.size,
-                                 channel_cells=mesh.channel_cells if a.channel_cells is None else a.channel_cells)
-    a.coarse_mesh = dataclasses.replace(a.fine, size_mm=a.coarse[0], channel_cells=a.coarse[1])
+    # every value checked by the project's own settings before any meshing: one line, exit 2
+    try:
+        a.fine = dataclasses.replace(mesh, size_mm=mesh.size_mm if a.size is None else a.size,
+                                     channel_cells=mesh.channel_cells if a.channel_cells is None else a.channel_cells)
+    except ParameterError as exc:
+        ap.error(f"--size / --channel-cells: {exc}")
+    try:
+        a.coarse_mesh = dataclasses.replace(a.fine, size_mm=a.coarse[0], channel_cells=a.coarse[1])
+    except ParameterError as exc:
+        ap.error(f"--coarse: {exc}")
+    try:
+        MultilevelSettings(pilot=a.pilot, se_factor=a.se_factor)
+    except ParameterError as exc:
+        ap.error(f"--{exc.name.replace('_', '-')}: {exc}")
+    if not 0 < a.target_h < float("inf"):
+        ap.error(f"--target-h: expected a positive number of hours, got {a.target_h}")
+    if min(a.workers) < 1:
+        ap.error(f"--workers: expected integers >= 1, got {a.workers}")
     two_level = "multilevel" in a.estimators
     map_strata = np.array([p.n_touches for p in paper.phantoms])
     if not (6 if two_level else 1) <= a.phantoms <= map_strata.size:  # two-level: var(D) needs 2 per touch count

@@ -32,6 +32,7 @@ import numpy as np  # noqa: E402
 from latticeopt import LatticeDesign, MeshSettings  # noqa: E402
 from latticeopt.cli._common import add_physics_arg, physics_from_args  # noqa: E402
 from latticeopt.coupled import CoupledModel, PhysicsSettings  # noqa: E402
+from latticeopt.errors import ParameterError  # noqa: E402
 from latticeopt.study.phantoms import Phantom, random_phantom  # noqa: E402
 from latticeopt.touches import Touch  # noqa: E402
 
@@ -81,7 +82,10 @@ def main() -> None:
                          "leaves out the grid lines on electrode edges)")
     add_physics_arg(ap)
     a = ap.parse_args()
-    physics = PhysicsSettings.from_dict(physics_from_args(a))
+    try:
+        physics = PhysicsSettings.from_dict(physics_from_args(a))
+    except ParameterError as exc:
+        ap.error(str(exc))
     levels = a.levels or [settings_for(size) for size in a.sizes]
     design = LatticeDesign(width_mm=a.width, thickness_mm=a.thickness, pattern=a.pattern, rim=a.rim)
     phantoms = [random_phantom(100.0, 1 + i % 3, i // 3, 2025) for i in range(a.phantoms)]
