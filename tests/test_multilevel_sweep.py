@@ -18,6 +18,7 @@ from doubles import logged_calls, record_call, run_cli
 from latticeopt.errors import ConvergenceError
 from latticeopt.study.config import load_study
 from latticeopt.study.multilevel import fine_order, multilevel_estimate
+from latticeopt.study.multilevel_report import model_seconds
 from latticeopt.study.store import ResultStore
 from latticeopt.study.sweep import run_sweep
 
@@ -110,7 +111,10 @@ def test_estimates_match_the_statistics_and_meet_the_criterion(tmp_path, monkeyp
         assert len(store.done_keys(ml.fine_settings.key)) == sum(ml.n_fine)
     assert ml.coarse_settings.key != ml.fine_settings.key
     report = (res.out_dir / "report.txt").read_text()
-    assert "two-level estimator" in report and "best minus runner-up" in report
+    assert "two-level estimator" in report and "best minus runner-up" in report and "model time:" in report
+    cost = model_seconds(study, ml)  # the all-fine cost: each design's mean fine seconds times its phantoms
+    want = sum(nph * np.mean([e.seconds for (d, _), e in ml.fine.items() if d == i]) for i in range(2))
+    assert cost["plain"] == pytest.approx(want, rel=1e-12) and cost["plain"] > cost["fine"]
     again = run_sweep(_study(tmp_path), fake_two_level, progress=False)
     assert again.computed == 0 and len(logged_calls(tmp_path / "calls.log")) == len(calls)
     assert again.multilevel.estimates == ml.estimates
@@ -126,6 +130,11 @@ def test_se_factor_one_runs_every_phantom_fine_and_equals_the_plain_sweep(tmp_pa
         rows = list(csv.DictReader(fh))
     for e, row in zip(ml.estimates, rows):
         assert e.mean == pytest.approx(float(row["v_rel_mean"]), rel=1e-12)
+    # every phantom fine: the all-fine cost the report extrapolates is exactly the fine seconds spent
+    cost = model_seconds(study, ml)
+    assert cost["plain"] == pytest.approx(cost["fine"], rel=1e-12) and cost["fine"] > 0
+    assert cost["two_level"] == pytest.approx(cost["coarse"] + cost["fine"], rel=1e-12)
+    assert cost["coarse"] == pytest.approx(sum(e.seconds for e in ml.coarse), rel=1e-12)
 
 
 def test_interrupted_run_resumes_without_recomputing(tmp_path, monkeypatch):

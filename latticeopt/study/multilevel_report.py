@@ -26,7 +26,7 @@ from .multilevel import multilevel_estimate
 from .multilevel_sweep import MultilevelRun
 from .report import _fmt, _value, write_tables_and_figures
 
-__all__ = ["multilevel_summary", "paired_difference", "write_multilevel_outputs"]
+__all__ = ["model_seconds", "multilevel_summary", "paired_difference", "write_multilevel_outputs"]
 
 
 def multilevel_summary(study: Study, run: MultilevelRun) -> list[dict]:
@@ -69,6 +69,28 @@ def paired_difference(study: Study, run: MultilevelRun, a: int, b: int):
         f[pos[j]] = run.fine[(a, j)].v_rel - run.fine[(b, j)].v_rel
     strata = np.array([study.phantoms[j].n_touches for j in run.used])
     return multilevel_estimate(c, f, strata)
+
+
+def model_seconds(study: Study, run: MultilevelRun) -> dict[str, float]:
+    """Model seconds the two-level run cost and what running every phantom fine would have cost.
+
+    Returns
+    -------
+    dict
+        ``coarse`` and ``fine``: seconds of every stored evaluation of the level (failures included);
+        ``two_level``: their sum; ``plain``: per design with fine phantoms, the mean seconds of its fine
+        evaluations times its number of phantoms, summed (the fine subset is a sample of every touch count, so
+        its mean cost is that of all phantoms).
+    """
+    nph = len(study.phantoms)
+    coarse = sum(e.seconds or 0.0 for e in run.coarse)
+    fine = sum(e.seconds or 0.0 for e in run.fine.values())
+    plain = 0.0
+    for i in range(len(study.designs)):
+        own = [e.seconds or 0.0 for (d, _), e in run.fine.items() if d == i]
+        if own:
+            plain += nph * float(np.mean(own))
+    return {"coarse": coarse, "fine": fine, "two_level": coarse + fine, "plain": plain}
 
 
 def _result_rows(study: Study, run: MultilevelRun) -> list[dict]:
@@ -115,6 +137,12 @@ def write_multilevel_outputs(study: Study, run: MultilevelRun, out: Path) -> tup
              f"run); fine phantoms per design: {min(run.n_fine[i] for i in run.compared) if run.compared else 0}"
              f"-{max(run.n_fine) if run.compared else 0}; computed now: {run.computed_coarse} coarse, "
              f"{run.computed_fine} fine"]
+    cost = model_seconds(study, run)
+    if cost["fine"] > 0:
+        lines.append(f"model time: {cost['coarse'] / 3600:.2f} h coarse + {cost['fine'] / 3600:.2f} h fine = "
+                     f"{cost['two_level'] / 3600:.2f} h; every phantom fine would take about "
+                     f"{cost['plain'] / 3600:.2f} h (each design's mean fine seconds x its phantoms), a ratio of "
+                     f"{cost['two_level'] / cost['plain']:.2f} (seconds of one worker each, summed)")
     for i in range(len(study.designs)):
         if i not in run.compared:
             lines.append(f"not compared: {_fmt(study.designs[i], study.grid_fields)}: every coarse phantom failed")
