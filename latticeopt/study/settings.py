@@ -172,7 +172,7 @@ class MultilevelSettings:
     """
 
     coarse: MeshSettings = field(default_factory=lambda: MeshSettings(size_mm=4.0, channel_cells=1))
-    pilot: int = 30
+    pilot: int = 15
     se_factor: float = 1.1
 
     def __post_init__(self) -> None:
