@@ -44,6 +44,13 @@ def fake_two_level(design, phantom, settings) -> dict:
     return {"v_rel": _value(design, phantom, settings.mesh.size_mm)}
 
 
+def fake_two_level_physics(design, phantom, settings) -> dict:
+    """TEST DOUBLE: as fake_two_level, with the coarse value offset by the ``mechanics_rtol`` it was run with."""
+    out = fake_two_level(design, phantom, settings)
+    out["v_rel"] += settings.physics.get("mechanics_rtol", 0.0)
+    return out
+
+
 def fake_two_level_failing(design, phantom, settings) -> dict:
     """TEST DOUBLE: as fake_two_level, but the fine level of the w = 4 design fails on 2-touch phantom 0."""
     if settings.mesh.size_mm <= 3.0 and design.width_mm == 4 and phantom.n_touches == 2 and phantom.index == 0:
@@ -163,7 +170,11 @@ def _cli(tmp_path: Path, *extra: str):
 
 @pytest.mark.parametrize("setting, key", [("multilevel.pilot=1", "--set multilevel.pilot"),
                                           ("multilevel.se_factor=0.5", "--set multilevel.se_factor"),
-                                          ("multilevel.coarse.size_mm=-4", "--set multilevel.coarse.size_mm")])
+                                          ("multilevel.coarse.size_mm=-4", "--set multilevel.coarse.size_mm"),
+                                          ("multilevel.coarse_physics.mechanics_rtol=2",
+                                           "multilevel.coarse_physics.mechanics_rtol"),
+                                          ("multilevel.coarse_physics.gel=2", "multilevel.coarse_physics"),
+                                          ("multilevel.coarse_physics=3", "multilevel.coarse_physics")])
 def test_cli_bad_values_exit_2_with_one_line_naming_the_key(tmp_path, setting, key):
     _study(tmp_path)
     done = _cli(tmp_path, "--set", setting)
@@ -217,3 +228,16 @@ def test_coarse_mesh_changes_only_the_keys_given_and_keeps_the_rest_of_the_fine_
     ml = load_study(path).multilevel  # no coarse key: 4 mm, 1 channel cell, the rest from [mesh]
     assert (ml.coarse.size_mm, ml.coarse.channel_cells, ml.coarse.layer_cells, ml.coarse.electrode_edges) == (
         4.0, 1, 3, False)
+
+
+def test_coarse_physics_changes_the_coarse_level_only(tmp_path):
+    study = _study(tmp_path, overrides=["physics.mechanics_rtol=1e-5", "multilevel.coarse_physics.mechanics_rtol=0.01"])
+    assert study.multilevel.coarse_physics == (("mechanics_rtol", 0.01),)
+    ml = run_sweep(study, fake_two_level_physics, progress=False).multilevel
+    assert dict(ml.coarse_settings.physics_items)["mechanics_rtol"] == 0.01
+    assert dict(ml.fine_settings.physics_items)["mechanics_rtol"] == 1e-5  # the fine level keeps [physics]
+    assert ml.coarse_settings.key != dataclasses.replace(ml.coarse_settings, physics_items=()).key
+    design, phantom = study.designs[0], study.phantoms[0]
+    assert ml.coarse[0].v_rel == pytest.approx(_value(design, phantom, 4.0) + 0.01, rel=1e-12)
+    fine = ml.fine[(0, ml.order[0])]
+    assert fine.v_rel == pytest.approx(_fine_value(design, study.phantoms[ml.order[0]]) + 1e-5, rel=1e-12)

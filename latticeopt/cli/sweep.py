@@ -63,8 +63,9 @@ def run_sweep_command(args: argparse.Namespace) -> int:
               f"mesh {study.settings.mesh.mesher} {study.settings.mesh.size_mm:g} mm; out {study.out_dir}")
         if study.multilevel is not None:
             ml = study.multilevel
-            print(f"two-level: every phantom also on the coarse mesh {ml.coarse.size_mm:g} mm, the fine mesh on a "
-                  f"pilot of {ml.pilot} and more until SE <= {ml.se_factor:g} x the plain fine SE (counted above: "
+            extra = "".join(f", {k} = {v}" for k, v in ml.coarse_physics)
+            print(f"two-level: every phantom also on the coarse mesh {ml.coarse.size_mm:g} mm{extra}, the fine mesh "
+                  f"on a pilot of {ml.pilot} and more until SE <= {ml.se_factor:g} x the plain fine SE (counted above: "
                   "the fine level if every phantom were run)")
         if study.adaptive is not None:
             ad = study.adaptive

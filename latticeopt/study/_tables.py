@@ -212,7 +212,8 @@ def _check_touches(where: _Where, table: str, designs: Sequence[LatticeDesign], 
 
 
 def _multilevel(where: _Where, tab: dict, fine: MeshSettings) -> MultilevelSettings:
-    """The ``[multilevel]`` table: ``coarse`` (a mesh table), ``pilot``, ``se_factor``."""
+    """The ``[multilevel]`` table: ``coarse`` (a mesh table), ``coarse_physics`` (a physics table), ``pilot``,
+    ``se_factor``."""
     _known(where, tab, _MULTILEVEL_KEYS, "multilevel")
     kwargs = dict(tab)
     # the coarse mesh is the fine one with the keys given changed: a coarse level that also switched mesher,
@@ -223,6 +224,9 @@ def _multilevel(where: _Where, tab: dict, fine: MeshSettings) -> MultilevelSetti
         if not isinstance(coarse, Mapping):
             raise where.error("multilevel.coarse", "a mesh table, e.g. { size_mm = 4.0, channel_cells = 1 }", coarse)
         _known(where, coarse, _MESH_KEYS, "multilevel.coarse")
+    if "coarse_physics" in tab and not isinstance(tab["coarse_physics"], Mapping):
+        raise where.error("multilevel.coarse_physics", "a [physics] table, e.g. { mechanics_rtol = 0.01 }",
+                          tab["coarse_physics"])
     try:
         kwargs["coarse"] = dataclasses.replace(fine, **coarse)
     except ParameterError as exc:

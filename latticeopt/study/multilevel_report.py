@@ -130,9 +130,10 @@ def write_multilevel_outputs(study: Study, run: MultilevelRun, out: Path) -> tup
     files = write_tables_and_figures(study, _result_rows(study, run), summary, out)
     nph = len(study.phantoms)
     c, f = run.coarse_settings.mesh, run.fine_settings.mesh
+    extra = "".join(f", {k} = {v}" for k, v in ml.coarse_physics)
     lines = [f"{study.name}: {len(study.designs)} designs x {nph} phantoms; two-level estimator: coarse mesh "
-             f"{c.size_mm:g} mm ({c.channel_cells} channel cells) on every phantom, fine mesh {f.size_mm:g} mm on "
-             f"a nested subset until SE <= {ml.se_factor:g} x the estimated plain fine SE (pilot {ml.pilot})",
+             f"{c.size_mm:g} mm ({c.channel_cells} channel cells{extra}) on every phantom, fine mesh {f.size_mm:g} mm "
+             f"on a nested subset until SE <= {ml.se_factor:g} x the estimated plain fine SE (pilot {ml.pilot})",
              f"phantoms used: {len(run.used)} of {nph} (those every compared design solved at both levels where "
              f"run); fine phantoms per design: {min(run.n_fine[i] for i in run.compared) if run.compared else 0}"
              f"-{max(run.n_fine) if run.compared else 0}; computed now: {run.computed_coarse} coarse, "

@@ -3,7 +3,8 @@
 The statistics are :mod:`latticeopt.study.multilevel`; this module only decides what to evaluate and reads the
 store. Steps:
 
-1. Every design x phantom on the coarse mesh (the study's settings with ``mesh = multilevel.coarse``).
+1. Every design x phantom on the coarse mesh (the study's settings with ``mesh = multilevel.coarse`` and the
+   ``[physics]`` keys of ``multilevel.coarse_physics`` changed).
 2. The phantoms every compared design solved at the coarse level, ordered by
    :func:`~latticeopt.study.multilevel.fine_order` (touch counts interleaved): the fine subset of a design is a
    prefix of that one order, so it is nested and common to all designs.
@@ -135,7 +136,8 @@ def run_multilevel(study: Study, settings: EvalSettings, out_dir, evaluate: Call
     from .sweep import evaluate_designs  # sweep dispatches here: import at call time
 
     ml = study.multilevel
-    coarse_settings = dataclasses.replace(settings, mesh=ml.coarse)
+    coarse_settings = dataclasses.replace(settings, mesh=ml.coarse,
+                                          physics_items=tuple({**settings.physics, **dict(ml.coarse_physics)}.items()))
     run = dict(evaluate=evaluate, jobs=jobs, backend=backend, scheduler=scheduler, progress=progress,
                retry_failed=retry_failed)
     coarse, computed_coarse = evaluate_designs(study.designs, study.phantoms, coarse_settings, out_dir,

@@ -164,6 +164,12 @@ class MultilevelSettings:
         The coarse mesh (the study's ``[mesh]`` is the fine one); it must differ from the fine mesh. In a study
         file, ``coarse`` lists only the ``[mesh]`` keys that change (default ``size_mm = 4.0, channel_cells = 1``);
         the others are the fine mesh's.
+    coarse_physics
+        ``[physics]`` keys the coarse level changes, as sorted ``(key, value)`` pairs (a dict in a study file,
+        checked like ``[physics]``); default none. Any deterministic coarse level leaves the estimate unbiased;
+        what it changes only moves the correlation with the fine level and the cost. Meant for solver
+        tolerances (``mechanics_rtol``; measured in ``docs/performance.md``); a changed physical parameter lowers
+        the correlation.
     pilot
         Phantoms evaluated fine first (raised so that every touch count has two), >= 2.
     se_factor
@@ -172,12 +178,23 @@ class MultilevelSettings:
     """
 
     coarse: MeshSettings = field(default_factory=lambda: MeshSettings(size_mm=4.0, channel_cells=1))
+    coarse_physics: tuple[tuple[str, object], ...] = ()
     pilot: int = 15
     se_factor: float = 1.1
 
     def __post_init__(self) -> None:
         if not isinstance(self.coarse, MeshSettings):
             raise ParameterError("coarse", "a mesh table, e.g. { size_mm = 4.0, channel_cells = 1 }", self.coarse)
+        given = self.coarse_physics
+        try:
+            items = dict(given.items() if isinstance(given, Mapping) else given)
+        except (TypeError, ValueError):
+            raise ParameterError("coarse_physics", "a [physics] table, e.g. { mechanics_rtol = 0.01 }", given) from None
+        for k, val in items.items():
+            if k not in PHYSICS_KEYS:
+                raise ParameterError("coarse_physics", "keys among " + ", ".join(PHYSICS_KEYS), k)
+            items[k] = PHYSICS_KEYS[k](f"coarse_physics.{k}", val)
+        object.__setattr__(self, "coarse_physics", tuple(sorted(items.items())))
         if isinstance(self.pilot, bool) or not isinstance(self.pilot, int) or self.pilot < 2:
             raise ParameterError("pilot", "an integer >= 2 (fine phantoms run first)", self.pilot)
         ok = isinstance(self.se_factor, (int, float)) and not isinstance(self.se_factor, bool)
