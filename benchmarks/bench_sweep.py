@@ -3,19 +3,21 @@ estimator on this machine.
 
     python benchmarks/bench_sweep.py [--size 2.0] [--channel-cells 2] [--phantoms 6] [--workers 1 2]
                                      [--designs 4,3 0,1 6,1 0,5 6,5 | --designs paper]
-                                     [--estimators plain multilevel] [--coarse 4:1] [--se-factor 1.1]
-                                     [--pilot 30] [--target-h 2]
+                                     [--estimators plain multilevel] [--coarse 4:1] [--coarse-electrics fine]
+                                     [--se-factor 1.1] [--pilot 15] [--target-h 2]
 
 For each design (width,thickness in mm; default: the default design only; ``paper``: all 30 designs of
 studies/paper_fig4.toml, the honest figure for the map) it times the first ``--phantoms`` phantoms of
 paper_fig4.toml's set, touch counts 1, 2, 3 in turn, on two levels: the fine mesh (paper_fig4.toml's, the
-converged one; ``--size`` and ``--channel-cells`` override it) and, for ``multilevel``, the coarse mesh
-``--coarse SIZE:CELLS`` (the fine settings with grid size and channel cells replaced; default 4 mm and 1 cell,
-as studies/multilevel_demo.toml, which leaves the other keys at their defaults). Each level runs with one worker
-and then with two processes (one BLAS thread each). A table row per design, level and worker count gives set-up
-(mesh read, mechanics operator, reference electrics), mechanics and electrics seconds, and per phantom the
-operation counts the time follows: Newton increments (linear solves), factorizations (shifted retries included)
-and Krylov iterations (one back-substitution each). The machine's load moves the seconds; the counts are stable.
+converged one; ``--size`` and ``--channel-cells`` override it) and, for ``multilevel``, the coarse level: the
+mechanics on the mesh ``--coarse SIZE:CELLS`` (the fine settings with grid size and channel cells replaced;
+default 4 mm and 1 cell, as a sweep's ``[multilevel]``) and the electrics on the fine mesh, or with
+``--coarse-electrics coarse`` on the coarse one. The nodes column gives the mechanics mesh. Each level runs with
+one worker and then with two processes (one BLAS thread each). A table row per design, level and worker count
+gives set-up (mesh read, mechanics operator, reference electrics), mechanics and electrics seconds, and per
+phantom the operation counts the time follows: Newton increments (linear solves), factorizations (shifted
+retries included) and Krylov iterations (one back-substitution each). The machine's load moves the seconds; the
+counts are stable.
 
 Precision (latticeopt.study.multilevel): from the phantoms solved on both levels, per touch count var(F) and
 var(D = F - C); the plain SE of a design's mean over the map's 300 phantoms (sqrt(var(F) / N), stratified); the
@@ -57,7 +59,7 @@ from latticeopt.errors import (  # noqa: E402
 from latticeopt.mesh import mesh_design  # noqa: E402
 from latticeopt.study.config import load_study  # noqa: E402
 from latticeopt.study.multilevel import predicted_fine_count  # noqa: E402
-from latticeopt.study.settings import MultilevelSettings  # noqa: E402
+from latticeopt.study.settings import COARSE_ELECTRICS, MultilevelSettings  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 CACHE = ROOT / "meshes"
@@ -74,9 +76,10 @@ def _bench_order(strata: np.ndarray) -> np.ndarray:
 
 
 def _run(args):
-    (w, t), mesh_settings, chunk = args
+    (w, t), (mesh_settings, mechanics_mesh), chunk = args
     t0 = time.perf_counter()
-    model = CoupledModel(LatticeDesign(width_mm=w, thickness_mm=t), mesh_settings, cache_dir=CACHE)
+    model = CoupledModel(LatticeDesign(width_mm=w, thickness_mm=t), mesh_settings, cache_dir=CACHE,
+                         mechanics_mesh=mechanics_mesh)
     setup = time.perf_counter() - t0
     rows = {}
     for i, ph in chunk:
@@ -89,7 +92,7 @@ def _run(args):
         ops = res.indentation.solver
         rows[i] = (res.timings["mechanics"], res.timings["electrics"], res.v_rel, res.newton_steps,
                    ops["n_factorizations"], ops["krylov_iterations"], time.perf_counter() - t1)
-    return setup, rows, model.mesh.n_nodes
+    return setup, rows, model.mechanics_mesh.n_nodes
 
 
 def _measure(design, mesh, phantoms, workers: int) -> dict:
@@ -224,6 +227,8 @@ def main() -> None:
     ap.add_argument("--estimators", nargs="+", choices=["plain", "multilevel"], default=["plain", "multilevel"],
                     help="map times to report (multilevel runs the coarse level too); default both")
     ap.add_argument("--coarse", type=_coarse, default=(4.0, 1), help="coarse mesh SIZE_MM:CHANNEL_CELLS (4:1)")
+    ap.add_argument("--coarse-electrics", choices=COARSE_ELECTRICS, default=MultilevelSettings().coarse_electrics,
+                    help="the coarse level's electrics on the fine mesh (default, as a sweep) or the coarse one")
     ap.add_argument("--se-factor", type=float, default=MultilevelSettings().se_factor)
     ap.add_argument("--pilot", type=int, default=MultilevelSettings().pilot, help="least fine count per design")
     ap.add_argument("--target-h", type=float, default=2.0, help="map wall-time target (h)")
@@ -259,10 +264,13 @@ def main() -> None:
         ap.error("--coarse: the coarse mesh must differ from the fine one")
     at = _bench_order(map_strata)[:a.phantoms]  # study positions of the benchmark phantoms
     phantoms = [paper.phantoms[i] for i in at]
-    levels = {"fine": a.fine, **({"coarse": a.coarse_mesh} if two_level else {})}
+    # (electrics mesh, mechanics mesh) per level, as latticeopt.study.settings.coarse_level_settings makes them
+    coarse = (a.fine, a.coarse_mesh) if a.coarse_electrics == "fine" else (a.coarse_mesh, None)
+    levels = {"fine": (a.fine, None), **({"coarse": coarse} if two_level else {})}
     print(f"load average before: {os.getloadavg()[0]:.2f} ({os.cpu_count()} cores)")
     print(f"{a.phantoms} phantoms (1-3 touches) per design and level; " +
-          "; ".join(f"{k} mesh {m.as_dict()}" for k, m in levels.items()))
+          "; ".join(f"{k} mesh {(m[1] or m[0]).as_dict()}" for k, m in levels.items()) +
+          (f"; coarse electrics on the {a.coarse_electrics} mesh" if two_level else ""))
     print("| design w,t mm | level | nodes | workers | set-up s | mechanics s / phantom | Newton increments | "
           "factorizations | Krylov iterations | electrics s | seconds / phantom | throughput s / phantom | failed |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
@@ -271,7 +279,8 @@ def main() -> None:
         meas[design] = {}
         for level, m in levels.items():
             # mesh once here, so the workers read the cache instead of meshing side by side
-            mesh_design(LatticeDesign(width_mm=design[0], thickness_mm=design[1]), m, cache_dir=CACHE)
+            for each in filter(None, m):
+                mesh_design(LatticeDesign(width_mm=design[0], thickness_mm=design[1]), each, cache_dir=CACHE)
             meas[design][level] = {k: _measure(design, m, phantoms, k) for k in a.workers}
             for k in a.workers:
                 _print_row(design, level, k, meas[design][level][k])

@@ -13,6 +13,12 @@ assumed): the hydrogel keeps its conductivity per unit volume and the electrics 
 hydrogel mesh, electrodes moving with it. ``conductivity_law`` adds a strain-dependent conductivity evaluated
 on the mechanics' patch averages (:mod:`latticeopt.conductivity`).
 
+``mechanics_mesh`` solves the mechanics on a mesh of other settings (the two-level sweep's coarse level: a
+coarser mesh) and moves the hydrogel nodes of the electrics mesh by the displacement interpolated from it
+(:func:`latticeopt.mesh.transfer.interpolation_matrix`). The interpolated hydrogel can fold where the coarse
+displacement bends sharply over a thin layer (t = 1 mm under a deep press); that phantom's electrics then run on
+the mechanics mesh itself, and the result says so (``electrics_mesh = "mechanics"``).
+
 ``V_rel = mean_i |V_i - V_i_ref| / |V_i_ref|`` over the measurement rows (paper eq. 5). With the adjacent
 protocol the 208 rows are the 104 independent ones twice (reciprocity), so the mean over 208 equals the mean
 over the 104 the paper quotes.
@@ -42,11 +48,12 @@ from .electrics.forward import (
     DEFAULT_SIGMA_S_PER_M,
     ForwardModel,
 )
-from .errors import ParameterError
+from .errors import MeshError, ParameterError
 from .mechanics.indent import IndentationSolver, IndentSettings
 from .mechanics.indenters import IN_PLANE, INDENTERS, PUNCH_EDGES
 from .mechanics.materials import Materials, NeoHookean
 from .mesh import MeshSettings, mesh_design
+from .mesh.transfer import interpolation_matrix
 from .touches import Touch
 
 log = logging.getLogger(__name__)
@@ -178,6 +185,9 @@ class SimulationResult:
         Linear solves of the mechanics.
     timings
         Seconds: ``mechanics``, ``electrics``, ``total``.
+    electrics_mesh
+        ``"mesh"`` (the model's mesh), or with a separate mechanics mesh ``"mechanics"`` when the interpolated
+        hydrogel folded and the electrics ran on the mechanics mesh instead (module docstring).
     """
 
     v_rel: float
@@ -188,11 +198,53 @@ class SimulationResult:
     newton_steps: int
     timings: dict
     indentation: object = dataclasses.field(repr=False, default=None)
+    electrics_mesh: str = "mesh"
 
     def summary(self) -> dict:
         return {"v_rel": self.v_rel, "voltages": self.voltages.tolist(), "forces_N": self.forces_N.tolist(),
                 "max_hydrogel_stretch": self.max_hydrogel_stretch, "newton_steps": self.newton_steps,
                 "seconds": self.timings["total"], "timings": dict(self.timings)}
+
+
+class _Electrics:
+    """The untouched sensor's electrics on one mesh, and V_rel of a deformed state of that mesh."""
+
+    def __init__(self, mesh, physics: PhysicsSettings, volumetric: str, mesh_settings: MeshSettings, design):
+        p = physics
+        self.mesh, self.physics = mesh, p
+        self.reference = ForwardModel(mesh, sigma_S_per_m=p.sigma_S_per_m,
+                                      contact_impedance_ohm_m2=p.contact_impedance_ohm_m2, current_A=p.current_A)
+        self.gel_tets = self.gel_patch = None
+        if p.conductivity_law != "geometry":
+            # the patches the mechanics averages the dilatation over, for the hydrogel tets in the forward
+            # model's element order
+            from .mechanics.assembly import dilatation_patches
+
+            gel = self.reference.gel_tet_ids
+            self.gel_tets = mesh.tets[gel]
+            self.gel_patch = dilatation_patches(mesh, volumetric)[gel]
+            ms = mesh_settings.resolved(design)
+            short = law_mesh_shortfall(ms.size_mm, ms.channel_cells, ms.layer_cells)
+            if short:
+                # the strain a law reads is a gradient: it settles on finer meshes than the geometry does
+                log.warning("conductivity_law %s on a mesh coarser than the laws converge on (%s): V_rel may read "
+                            "10-20 %% low; use mesh size_mm <= 1.4 with 3 channel and layer cells (--size 1.4 "
+                            "--channel-cells 3 --layer-cells 3) or finer",
+                            p.conductivity_law, ", ".join(short))
+
+    def voltages(self, deformed_nodes_mm: np.ndarray) -> np.ndarray:
+        """The 208 voltages with the mesh's nodes at ``deformed_nodes_mm`` (shape ``(N, 3)``, every node)."""
+        return self.reference.with_nodes(deformed_nodes_mm, self._conductivity(deformed_nodes_mm)).voltages
+
+    def _conductivity(self, deformed_nodes_mm: np.ndarray) -> np.ndarray | None:
+        """Hydrogel conductivity per tet of the deformed state (S/m), None for the geometry law."""
+        p = self.physics
+        if p.conductivity_law == "geometry":
+            return None
+        # hydrogel nodes are never moved by the conforming punch rim: the mesh's nodes are their reference
+        J, thickness = patch_measures(self.mesh.nodes_mm, deformed_nodes_mm, self.gel_tets, self.gel_patch)
+        factor = conductivity_factor(p.conductivity_law, p.conductivity_measure, p.conductivity_k, J, thickness)
+        return p.sigma_S_per_m * factor
 
 
 class CoupledModel:
@@ -208,37 +260,34 @@ class CoupledModel:
         :class:`PhysicsSettings` (default values if None).
     cache_dir
         Mesh cache folder (see :func:`latticeopt.mesh.mesh_design`).
+    mechanics_mesh
+        Mesher settings of a separate mechanics mesh (module docstring); None (default): the mechanics runs on
+        the electrics mesh.
     """
 
     def __init__(self, design: LatticeDesign, mesh_settings: MeshSettings | None = None,
-                 physics: PhysicsSettings | None = None, cache_dir=None):
+                 physics: PhysicsSettings | None = None, cache_dir=None, mechanics_mesh: MeshSettings | None = None):
         t0 = time.perf_counter()
         self.design = design
         self.physics = physics or PhysicsSettings()
         mesh_settings = mesh_settings or MeshSettings()
+        if mechanics_mesh is not None and not isinstance(mechanics_mesh, MeshSettings):
+            raise ParameterError("mechanics_mesh", "a MeshSettings or None", mechanics_mesh)
         self.mesh = mesh_design(design, mesh_settings, cache_dir=cache_dir)
-        self.mechanics = IndentationSolver(self.mesh, self.physics.indent_settings())
-        p = self.physics
-        self.reference = ForwardModel(self.mesh, sigma_S_per_m=p.sigma_S_per_m,
-                                      contact_impedance_ohm_m2=p.contact_impedance_ohm_m2, current_A=p.current_A)
+        separate = mechanics_mesh is not None and mechanics_mesh.identity() != mesh_settings.identity()
+        self.mechanics_mesh = mesh_design(design, mechanics_mesh, cache_dir=cache_dir) if separate else self.mesh
+        indent = self.physics.indent_settings()
+        self.mechanics = IndentationSolver(self.mechanics_mesh, indent)
+        self._electrics = _Electrics(self.mesh, self.physics, indent.volumetric, mesh_settings, design)
+        self.reference = self._electrics.reference
         self.reference_voltages = self.reference.voltages
-        self._gel_tets = self._gel_patch = None
-        if p.conductivity_law != "geometry":
-            # the patches the mechanics averages the dilatation over, for the hydrogel tets in the forward
-            # model's element order
-            from .mechanics.assembly import dilatation_patches
-
-            gel = self.reference.gel_tet_ids
-            self._gel_tets = self.mesh.tets[gel]
-            self._gel_patch = dilatation_patches(self.mesh, self.mechanics.settings.volumetric)[gel]
-            ms = mesh_settings.resolved(design)
-            short = law_mesh_shortfall(ms.size_mm, ms.channel_cells, ms.layer_cells)
-            if short:
-                # the strain a law reads is a gradient: it settles on finer meshes than the geometry does
-                log.warning("conductivity_law %s on a mesh coarser than the laws converge on (%s): V_rel may read "
-                            "10-20 %% low; use mesh size_mm <= 1.4 with 3 channel and layer cells (--size 1.4 "
-                            "--channel-cells 3 --layer-cells 3) or finer",
-                            p.conductivity_law, ", ".join(short))
+        self._transfer = self._fallback = None
+        if separate:
+            # the electrics mesh's hydrogel nodes in the mechanics mesh (its nodes as meshed: the conforming punch
+            # rim moves top-surface silicone nodes only, never those of a tet holding hydrogel)
+            gel_nodes = self.mesh.nodes_mm[self.reference.node_ids]
+            self._transfer = interpolation_matrix(self.mechanics_mesh, gel_nodes)
+            self._fallback = _Electrics(self.mechanics_mesh, self.physics, indent.volumetric, mechanics_mesh, design)
         self.setup_seconds = time.perf_counter() - t0
 
     def simulate(self, touches) -> SimulationResult:
@@ -246,37 +295,41 @@ class CoupledModel:
         t0 = time.perf_counter()
         ind = self.mechanics.solve(touches)
         t1 = time.perf_counter()
-        deformed = self.reference.with_nodes(ind.deformed_mesh.nodes_mm, self._conductivity(ind))
-        volts = deformed.voltages
+        where, reference = "mesh", self.reference_voltages
+        if self._transfer is None:
+            volts = self._electrics.voltages(ind.deformed_mesh.nodes_mm)
+        else:
+            nodes = self.mesh.nodes_mm.copy()
+            nodes[self.reference.node_ids] += self._transfer @ ind.displacement_mm
+            try:
+                volts = self._electrics.voltages(nodes)
+            except MeshError as exc:
+                log.info("interpolated hydrogel folded (%s): electrics on the mechanics mesh", exc)
+                where, reference = "mechanics", self._fallback.reference.voltages
+                volts = self._fallback.voltages(ind.deformed_mesh.nodes_mm)
         t2 = time.perf_counter()
         return SimulationResult(
-            v_rel=relative_change(volts, self.reference_voltages), voltages=volts,
-            reference_voltages=self.reference_voltages, forces_N=np.asarray(ind.forces_N),
+            v_rel=relative_change(volts, reference), voltages=volts,
+            reference_voltages=reference, forces_N=np.asarray(ind.forces_N),
             max_hydrogel_stretch=float(ind.max_hydrogel_stretch), newton_steps=int(ind.newton_steps),
-            timings={"mechanics": t1 - t0, "electrics": t2 - t1, "total": t2 - t0}, indentation=ind)
-
-    def _conductivity(self, ind) -> np.ndarray | None:
-        """Hydrogel conductivity per tet of the deformed state (S/m), None for the geometry law."""
-        p = self.physics
-        if p.conductivity_law == "geometry":
-            return None
-        # hydrogel nodes are never moved by the conforming punch rim: the mesh's nodes are their reference
-        J, thickness = patch_measures(self.mesh.nodes_mm, ind.deformed_mesh.nodes_mm, self._gel_tets,
-                                      self._gel_patch)
-        factor = conductivity_factor(p.conductivity_law, p.conductivity_measure, p.conductivity_k, J, thickness)
-        return p.sigma_S_per_m * factor
+            timings={"mechanics": t1 - t0, "electrics": t2 - t1, "total": t2 - t0}, indentation=ind,
+            electrics_mesh=where)
 
 
 def simulate(design: LatticeDesign, touches, mesh_settings: MeshSettings | None = None,
-             physics: PhysicsSettings | None = None, cache_dir=None) -> SimulationResult:
+             physics: PhysicsSettings | None = None, cache_dir=None,
+             mechanics_mesh: MeshSettings | None = None) -> SimulationResult:
     """One-shot coupled simulation (builds a :class:`CoupledModel`; reuse one for many phantoms)."""
-    return CoupledModel(design, mesh_settings, physics, cache_dir).simulate(touches)
+    return CoupledModel(design, mesh_settings, physics, cache_dir, mechanics_mesh).simulate(touches)
 
 
 def _result_dict(res: SimulationResult, setup_seconds: float) -> dict:
-    return {"v_rel": res.v_rel, "voltages": res.voltages, "forces_N": res.forces_N.tolist(),
-            "timings": {**res.timings, "setup": setup_seconds}, "max_hydrogel_stretch": res.max_hydrogel_stretch,
-            "newton_steps": res.newton_steps}
+    out = {"v_rel": res.v_rel, "voltages": res.voltages, "forces_N": res.forces_N.tolist(),
+           "timings": {**res.timings, "setup": setup_seconds}, "max_hydrogel_stretch": res.max_hydrogel_stretch,
+           "newton_steps": res.newton_steps}
+    if res.electrics_mesh != "mesh":
+        out["electrics_mesh"] = res.electrics_mesh
+    return out
 
 
 def _touches(phantom) -> list[Touch]:
@@ -285,7 +338,8 @@ def _touches(phantom) -> list[Touch]:
 
 def prepare_design(design: LatticeDesign, settings):
     """Build a design's :class:`CoupledModel` once; returns ``run(phantom) -> dict`` (the sweep's chunk hook)."""
-    model = CoupledModel(design, settings.mesh, PhysicsSettings.from_dict(settings.physics), settings.cache_dir)
+    model = CoupledModel(design, settings.mesh, PhysicsSettings.from_dict(settings.physics), settings.cache_dir,
+                         settings.mechanics_mesh)
     return lambda phantom: _result_dict(model.simulate(_touches(phantom)), model.setup_seconds)
 
 

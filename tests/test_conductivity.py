@@ -92,9 +92,12 @@ def v_rel():
     return run
 
 
-def test_k_zero_is_the_geometry_law_exactly(v_rel):
-    assert v_rel("linear", 0.0) == v_rel("geometry")
-    assert v_rel("power", 0.0, "J") == v_rel("geometry")
+def test_k_zero_is_the_geometry_law(v_rel):
+    # each call solves the mechanics afresh: with more than one MKL thread PARDISO's rounding varies from solve
+    # to solve, Newton takes another path to a state within the coupled model's tolerance (mechanics_rtol 1e-4)
+    # and V_rel moves by up to a few 1e-5 (seen: 2e-6, 3.6e-5); with one thread the values agree bit for bit
+    assert v_rel("linear", 0.0) == pytest.approx(v_rel("geometry"), rel=2e-4)
+    assert v_rel("power", 0.0, "J") == pytest.approx(v_rel("geometry"), rel=2e-4)
 
 
 def test_v_rel_is_smooth_in_k(v_rel):

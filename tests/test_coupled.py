@@ -46,8 +46,9 @@ def test_pressed_voltages_match_pyeit_on_the_deformed_mesh(model):
 
     from latticeopt.electrics import ForwardModel
 
-    point = copy.copy(model)
-    point.reference = ForwardModel(model.mesh, electrode_mode="point", current_A=1.0)
+    point = copy.copy(model)  # the same mechanics, point-electrode electrics
+    point._electrics = copy.copy(model._electrics)
+    point._electrics.reference = point.reference = ForwardModel(model.mesh, electrode_mode="point", current_A=1.0)
     point.reference_voltages = point.reference.voltages
     res = point.simulate([Touch(45, 55, 8.75, 2.0)])
     gel = point.reference
@@ -133,3 +134,65 @@ def test_physics_material_keys_accept_exactly_what_the_material_law_accepts(valu
             physics_ok = False
             assert exc.name == key
         assert physics_ok == law_ok, (key, value)
+
+
+def test_a_separate_mechanics_mesh_that_is_the_same_mesh_changes_nothing(model, tmp_path):
+    # settings that differ only in a key the grid mesher ignores: a separate mechanics mesh with the same nodes,
+    # so the transfer is the identity and the chain through it must reproduce the plain model
+    plain_nodes = model.mesh.nodes_mm
+    same = dataclasses.replace(COARSE, epsilon_rel=2e-3)  # a tetwild-only key: another identity, the same grid
+    twin = CoupledModel(model.design, COARSE, cache_dir=tmp_path, mechanics_mesh=same)
+    assert twin.mechanics_mesh is not twin.mesh and np.array_equal(twin.mechanics_mesh.nodes_mm, plain_nodes)
+    touch = [Touch(40, 60, 8.0, 3.0)]
+    a, b = model.simulate(touch), twin.simulate(touch)
+    assert b.electrics_mesh == "mesh"
+    assert b.v_rel == pytest.approx(a.v_rel, rel=2e-4)  # two mechanics solves (see test_conductivity)
+    one = CoupledModel(model.design, COARSE, cache_dir=tmp_path, mechanics_mesh=COARSE)
+    assert one.mechanics_mesh is one.mesh  # the same settings: no transfer at all
+
+
+def test_coarse_mechanics_moves_the_fine_hydrogel_by_the_interpolated_displacement(tmp_path):
+    design = LatticeDesign(width_mm=4, thickness_mm=3)
+    coarse = dataclasses.replace(COARSE, size_mm=8.0)
+    hybrid = CoupledModel(design, COARSE, cache_dir=tmp_path, mechanics_mesh=coarse)
+    alone = CoupledModel(design, coarse, cache_dir=tmp_path)
+    assert hybrid.mechanics_mesh.n_nodes == alone.mesh.n_nodes < hybrid.mesh.n_nodes
+    touch = [Touch(50, 50, 8.75, 3.0)]
+    h, c = hybrid.simulate(touch), alone.simulate(touch)
+    assert h.electrics_mesh == "mesh" and h.voltages.shape == (208,)
+    assert np.array_equal(h.reference_voltages, CoupledModel(design, COARSE, cache_dir=tmp_path).reference_voltages)
+    assert np.allclose(h.forces_N, c.forces_N, rtol=1e-3)  # the same mechanics
+    assert h.v_rel != pytest.approx(c.v_rel, rel=1e-3)  # ... measured on another electrics mesh
+    # the hydrogel nodes moved exactly as the P1 interpolant of the coarse displacement
+    from latticeopt.mesh.transfer import interpolation_matrix
+
+    gel = hybrid.mesh.nodes_mm[hybrid.reference.node_ids]
+    moved = gel + interpolation_matrix(hybrid.mechanics_mesh, gel) @ h.indentation.displacement_mm
+    assert np.allclose(hybrid.reference.with_nodes(moved).voltages, h.voltages, rtol=0, atol=1e-12)
+
+
+def test_a_folded_interpolation_falls_back_to_the_mechanics_mesh_and_says_so(tmp_path, monkeypatch):
+    from latticeopt import coupled
+    from latticeopt.errors import MeshError
+
+    design = LatticeDesign(width_mm=4, thickness_mm=3)
+    coarse = dataclasses.replace(COARSE, size_mm=8.0)
+    hybrid = CoupledModel(design, COARSE, cache_dir=tmp_path, mechanics_mesh=coarse)
+    main = hybrid._electrics
+
+    def folded(self, nodes):
+        if self is main:
+            raise MeshError("1 hydrogel tets are inverted or flat")
+        return original(self, nodes)
+
+    original = coupled._Electrics.voltages
+    monkeypatch.setattr(coupled._Electrics, "voltages", folded)
+    touch = [Touch(50, 50, 8.75, 3.0)]
+    res = hybrid.simulate(touch)
+    monkeypatch.undo()
+    assert res.electrics_mesh == "mechanics"
+    assert res.v_rel == pytest.approx(CoupledModel(design, coarse, cache_dir=tmp_path).simulate(touch).v_rel,
+                                      rel=2e-4)
+    stored = coupled._result_dict(res, 0.0)
+    assert stored["electrics_mesh"] == "mechanics"
+    assert "electrics_mesh" not in coupled._result_dict(hybrid.simulate(touch), 0.0)

@@ -19,6 +19,7 @@ from latticeopt.errors import ConvergenceError
 from latticeopt.study.config import load_study
 from latticeopt.study.multilevel import fine_order, multilevel_estimate
 from latticeopt.study.multilevel_report import model_seconds
+from latticeopt.study.settings import coarse_level_settings
 from latticeopt.study.store import ResultStore
 from latticeopt.study.sweep import run_sweep
 
@@ -38,10 +39,15 @@ def _value(design, phantom, size_mm: float) -> float:
     return 0.9 * f - 2e-3 + 1e-3 * math.sin(7.0 * phantom.index + 3.0 * phantom.n_touches + design.width_mm)
 
 
+def _size(settings) -> float:
+    """Mesh size of the level's mechanics (the coarse level solves its mechanics on ``mechanics_mesh``)."""
+    return (settings.mechanics_mesh or settings.mesh).size_mm
+
+
 def fake_two_level(design, phantom, settings) -> dict:
     """TEST DOUBLE: fine (mesh <= 3 mm) and coarse values of one phantom; logs every call."""
-    record_call(f"{settings.mesh.size_mm} {design.content_hash()} {phantom.key}", LOG_ENV, STOP_ENV)
-    return {"v_rel": _value(design, phantom, settings.mesh.size_mm)}
+    record_call(f"{_size(settings)} {design.content_hash()} {phantom.key}", LOG_ENV, STOP_ENV)
+    return {"v_rel": _value(design, phantom, _size(settings))}
 
 
 def fake_two_level_physics(design, phantom, settings) -> dict:
@@ -51,9 +57,17 @@ def fake_two_level_physics(design, phantom, settings) -> dict:
     return out
 
 
+def fake_two_level_folding(design, phantom, settings) -> dict:
+    """TEST DOUBLE: as fake_two_level; the coarse level's electrics "fell back" on 3-touch phantom 0."""
+    out = fake_two_level(design, phantom, settings)
+    if settings.mechanics_mesh is not None and phantom.n_touches == 3 and phantom.index == 0:
+        out["electrics_mesh"] = "mechanics"
+    return out
+
+
 def fake_two_level_failing(design, phantom, settings) -> dict:
     """TEST DOUBLE: as fake_two_level, but the fine level of the w = 4 design fails on 2-touch phantom 0."""
-    if settings.mesh.size_mm <= 3.0 and design.width_mm == 4 and phantom.n_touches == 2 and phantom.index == 0:
+    if _size(settings) <= 3.0 and design.width_mm == 4 and phantom.n_touches == 2 and phantom.index == 0:
         raise ConvergenceError("fake: the fine mechanics did not converge")
     return fake_two_level(design, phantom, settings)
 
@@ -174,7 +188,8 @@ def _cli(tmp_path: Path, *extra: str):
                                           ("multilevel.coarse_physics.mechanics_rtol=2",
                                            "multilevel.coarse_physics.mechanics_rtol"),
                                           ("multilevel.coarse_physics.gel=2", "multilevel.coarse_physics"),
-                                          ("multilevel.coarse_physics=3", "multilevel.coarse_physics")])
+                                          ("multilevel.coarse_physics=3", "multilevel.coarse_physics"),
+                                          ("multilevel.coarse_electrics=both", "multilevel.coarse_electrics")])
 def test_cli_bad_values_exit_2_with_one_line_naming_the_key(tmp_path, setting, key):
     _study(tmp_path)
     done = _cli(tmp_path, "--set", setting)
@@ -241,3 +256,30 @@ def test_coarse_physics_changes_the_coarse_level_only(tmp_path):
     assert ml.coarse[0].v_rel == pytest.approx(_value(design, phantom, 4.0) + 0.01, rel=1e-12)
     fine = ml.fine[(0, ml.order[0])]
     assert fine.v_rel == pytest.approx(_fine_value(design, study.phantoms[ml.order[0]]) + 1e-5, rel=1e-12)
+
+
+def test_coarse_electrics_fine_keeps_the_fine_mesh_and_solves_the_mechanics_on_the_coarse_one(tmp_path):
+    study = _study(tmp_path)
+    ml = study.multilevel
+    assert ml.coarse_electrics == "fine"  # the default
+    hybrid = coarse_level_settings(study.settings, ml)
+    assert hybrid.mesh == study.settings.mesh and hybrid.mechanics_mesh == ml.coarse
+    assert hybrid.key != study.settings.key and "mechanics_mesh" not in study.settings.as_dict()
+    both = coarse_level_settings(study.settings, dataclasses.replace(ml, coarse_electrics="coarse"))
+    assert both.mesh == ml.coarse and both.mechanics_mesh is None
+    assert len({hybrid.key, both.key, study.settings.key}) == 3
+    res = run_sweep(_study(tmp_path, overrides=["multilevel.coarse_electrics=coarse"]), fake_two_level,
+                    progress=False)
+    assert res.multilevel.coarse_settings.mesh.size_mm == 4.0
+    assert "electrics on the coarse mesh" in (res.out_dir / "report.txt").read_text()
+
+
+def test_coarse_evaluations_whose_electrics_fell_back_are_marked_and_counted(tmp_path):
+    study = _study(tmp_path)
+    res = run_sweep(study, fake_two_level_folding, progress=False)
+    with open(res.outputs["results"]) as fh:
+        rows = list(csv.DictReader(fh))
+    marked = [(r["level"], int(r["n_touches"]), int(r["phantom_index"])) for r in rows if r["electrics_on"] == "coarse"]
+    assert sorted(marked) == [("coarse", 3, 0)] * len(study.designs)
+    assert {r["electrics_on"] for r in rows if r["level"] == "fine"} == {"fine"}
+    assert "folded in 2 of 72 evaluations" in (res.out_dir / "report.txt").read_text()

@@ -64,7 +64,8 @@ def run_sweep_command(args: argparse.Namespace) -> int:
         if study.multilevel is not None:
             ml = study.multilevel
             extra = "".join(f", {k} = {v}" for k, v in ml.coarse_physics)
-            print(f"two-level: every phantom also on the coarse mesh {ml.coarse.size_mm:g} mm{extra}, the fine mesh "
+            print(f"two-level: every phantom also with the mechanics on the coarse mesh {ml.coarse.size_mm:g} mm "
+                  f"(electrics on the {ml.coarse_electrics} mesh{extra}), the fine level "
                   f"on a pilot of {ml.pilot} and more until SE <= {ml.se_factor:g} x the plain fine SE (counted above: "
                   "the fine level if every phantom were run)")
         if study.adaptive is not None:

@@ -93,6 +93,16 @@ def model_seconds(study: Study, run: MultilevelRun) -> dict[str, float]:
     return {"coarse": coarse, "fine": fine, "two_level": coarse + fine, "plain": plain}
 
 
+def _electrics_on(level: str, ml, e) -> str:
+    """The mesh an evaluation's electrics ran on: ``"fine"``, or ``"coarse"`` (coarse electrics, or a coarse
+    level whose interpolated hydrogel folded, :class:`latticeopt.coupled.CoupledModel`)."""
+    if level == "fine":
+        return "fine"
+    if ml.coarse_electrics == "coarse" or (e.extra or {}).get("electrics_mesh") == "mechanics":
+        return "coarse"
+    return "fine"
+
+
 def _result_rows(study: Study, run: MultilevelRun) -> list[dict]:
     nph = len(study.phantoms)
     used = set(run.used)
@@ -104,7 +114,8 @@ def _result_rows(study: Study, run: MultilevelRun) -> list[dict]:
         for (i, j), e in sorted(evals.items()):
             p = study.phantoms[j]
             in_fine = level == "coarse" or j in set(run.order[:run.n_fine[i]])
-            row = {"level": level, "mesh_size_mm": settings.mesh.size_mm}
+            row = {"level": level, "mesh_size_mm": (settings.mechanics_mesh or settings.mesh).size_mm,
+                   "electrics_on": _electrics_on(level, study.multilevel, e)}
             row.update({f: _value(study.designs[i], f) for f in study.grid_fields})
             row.update(phantom_index=p.index, n_touches=p.n_touches, status=e.status, v_rel=e.v_rel,
                        seconds=e.seconds, error=(e.error or "").splitlines()[0] if e.error else "",
@@ -129,10 +140,11 @@ def write_multilevel_outputs(study: Study, run: MultilevelRun, out: Path) -> tup
     summary = multilevel_summary(study, run)
     files = write_tables_and_figures(study, _result_rows(study, run), summary, out)
     nph = len(study.phantoms)
-    c, f = run.coarse_settings.mesh, run.fine_settings.mesh
+    c, f = ml.coarse, run.fine_settings.mesh
     extra = "".join(f", {k} = {v}" for k, v in ml.coarse_physics)
     lines = [f"{study.name}: {len(study.designs)} designs x {nph} phantoms; two-level estimator: coarse mesh "
-             f"{c.size_mm:g} mm ({c.channel_cells} channel cells{extra}) on every phantom, fine mesh {f.size_mm:g} mm "
+             f"{c.size_mm:g} mm ({c.channel_cells} channel cells, electrics on the {ml.coarse_electrics} mesh{extra}) "
+             f"on every phantom, fine mesh {f.size_mm:g} mm "
              f"on a nested subset until SE <= {ml.se_factor:g} x the estimated plain fine SE (pilot {ml.pilot})",
              f"phantoms used: {len(run.used)} of {nph} (those every compared design solved at both levels where "
              f"run); fine phantoms per design: {min(run.n_fine[i] for i in run.compared) if run.compared else 0}"
@@ -144,6 +156,11 @@ def write_multilevel_outputs(study: Study, run: MultilevelRun, out: Path) -> tup
                      f"{cost['two_level'] / 3600:.2f} h; every phantom fine would take about "
                      f"{cost['plain'] / 3600:.2f} h (each design's mean fine seconds x its phantoms), a ratio of "
                      f"{cost['two_level'] / cost['plain']:.2f} (seconds of one worker each, summed)")
+    if ml.coarse_electrics == "fine":
+        folded = sum((e.extra or {}).get("electrics_mesh") == "mechanics" for e in run.coarse)
+        if folded:
+            lines.append(f"coarse level: the interpolated hydrogel folded in {folded} of {len(run.coarse)} "
+                         "evaluations, whose electrics ran on the coarse mesh instead (results.csv electrics_on)")
     for i in range(len(study.designs)):
         if i not in run.compared:
             lines.append(f"not compared: {_fmt(study.designs[i], study.grid_fields)}: every coarse phantom failed")

@@ -3,8 +3,9 @@
 The statistics are :mod:`latticeopt.study.multilevel`; this module only decides what to evaluate and reads the
 store. Steps:
 
-1. Every design x phantom on the coarse mesh (the study's settings with ``mesh = multilevel.coarse`` and the
-   ``[physics]`` keys of ``multilevel.coarse_physics`` changed).
+1. Every design x phantom at the coarse level (:func:`~latticeopt.study.settings.coarse_level_settings`: the
+   mechanics on ``multilevel.coarse``, the electrics on the fine mesh or, with ``coarse_electrics = "coarse"``,
+   on the coarse one; the ``[physics]`` keys of ``multilevel.coarse_physics`` changed).
 2. The phantoms every compared design solved at the coarse level, ordered by
    :func:`~latticeopt.study.multilevel.fine_order` (touch counts interleaved): the fine subset of a design is a
    prefix of that one order, so it is nested and common to all designs.
@@ -23,7 +24,6 @@ phantoms that every design solved at the coarse level and, where run, at the fin
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -32,7 +32,7 @@ import numpy as np
 
 from .config import Study
 from .multilevel import MultilevelEstimate, fine_order, multilevel_estimate, next_fine_count
-from .settings import EvalSettings
+from .settings import EvalSettings, coarse_level_settings
 from .store import Evaluation
 
 __all__ = ["MultilevelRun", "run_multilevel"]
@@ -136,8 +136,7 @@ def run_multilevel(study: Study, settings: EvalSettings, out_dir, evaluate: Call
     from .sweep import evaluate_designs  # sweep dispatches here: import at call time
 
     ml = study.multilevel
-    coarse_settings = dataclasses.replace(settings, mesh=ml.coarse,
-                                          physics_items=tuple({**settings.physics, **dict(ml.coarse_physics)}.items()))
+    coarse_settings = coarse_level_settings(settings, ml)
     run = dict(evaluate=evaluate, jobs=jobs, backend=backend, scheduler=scheduler, progress=progress,
                retry_failed=retry_failed)
     coarse, computed_coarse = evaluate_designs(study.designs, study.phantoms, coarse_settings, out_dir,

@@ -13,10 +13,15 @@ import json
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
+from .. import _validate as v
 from ..errors import ParameterError
 from ..mesh import MeshSettings
 
-__all__ = ["DEFAULT_MODEL", "PHYSICS_KEYS", "AdaptiveSettings", "EvalSettings", "MultilevelSettings"]
+__all__ = ["COARSE_ELECTRICS", "DEFAULT_MODEL", "PHYSICS_KEYS", "AdaptiveSettings", "EvalSettings",
+           "MultilevelSettings", "coarse_level_settings"]
+
+#: Where a two-level sweep's coarse level solves the electrics (:class:`MultilevelSettings` ``coarse_electrics``).
+COARSE_ELECTRICS = ("fine", "coarse")
 
 #: The evaluation function a study uses unless it names another (``model = "module:function"``).
 DEFAULT_MODEL = "latticeopt.coupled:evaluate_phantom"
@@ -85,16 +90,23 @@ class EvalSettings:
     cache_dir
         Mesh/reference cache folder for the model (``None``: the library default). Not part of the key:
         where a cache lives does not change a result.
+    mechanics_mesh
+        A separate mesh for the mechanics (the two-level sweep's coarse level with ``electrics = "fine"``;
+        :class:`latticeopt.coupled.CoupledModel`); ``None`` (default): the mechanics runs on :attr:`mesh`. Part of
+        the key only when set, so the keys of rows computed without it are unchanged.
     """
 
     mesh: MeshSettings = field(default_factory=MeshSettings)
     physics_items: tuple[tuple[str, object], ...] = ()
     model: str = DEFAULT_MODEL
     cache_dir: str | None = None
+    mechanics_mesh: MeshSettings | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.mesh, MeshSettings):
             raise ParameterError("mesh", "a MeshSettings", self.mesh)
+        if self.mechanics_mesh is not None and not isinstance(self.mechanics_mesh, MeshSettings):
+            raise ParameterError("mechanics_mesh", "a MeshSettings or None", self.mechanics_mesh)
         items = dict(self.physics_items)
         for k, val in items.items():
             if k not in PHYSICS_KEYS:
@@ -117,7 +129,7 @@ class EvalSettings:
         -------
         dict
             ``mesh``: every :class:`MeshSettings` field, defaults included (``"auto"`` spelled out:
-            :meth:`MeshSettings.identity`). ``physics``: for the default model,
+            :meth:`MeshSettings.identity`); ``mechanics_mesh`` likewise, when set. ``physics``: for the default model,
             the resolved :class:`latticeopt.coupled.PhysicsSettings` (all fields) and the
             :class:`latticeopt.mechanics.IndentSettings` it hands the solver (``indent``, materials nested);
             for any other model, the ``[physics]`` table as given (its defaults are the model's own business).
@@ -143,8 +155,10 @@ class EvalSettings:
             except ParameterError as exc:  # a combination PHYSICS_KEYS's per-key checks cannot see
                 raise ParameterError(f"physics.{exc.name}", exc.expected, exc.got) from None
             physics = {**resolved.as_dict(), "indent": resolved.indent_settings().as_dict()}
-        return {"mesh": self.mesh.identity(), "physics": physics, "model": self.model,
-                "version": __version__}
+        out = {"mesh": self.mesh.identity(), "physics": physics, "model": self.model, "version": __version__}
+        if self.mechanics_mesh is not None:
+            out["mechanics_mesh"] = self.mechanics_mesh.identity()
+        return out
 
     @property
     def key(self) -> str:
@@ -164,12 +178,19 @@ class MultilevelSettings:
         The coarse mesh (the study's ``[mesh]`` is the fine one); it must differ from the fine mesh. In a study
         file, ``coarse`` lists only the ``[mesh]`` keys that change (default ``size_mm = 4.0, channel_cells = 1``);
         the others are the fine mesh's.
+    coarse_electrics
+        Where the coarse level solves the electrics: ``"fine"`` (default: on the fine mesh, its hydrogel moved by
+        the coarse mechanics' interpolated displacement; :class:`latticeopt.coupled.CoupledModel`
+        ``mechanics_mesh``) or ``"coarse"`` (on the coarse mesh). The electrics are a few per cent of a phantom's
+        time, and a coarse mesh's one cell across a 2 mm channel is most of the coarse level's error there: on the
+        paper designs ``"fine"`` follows the fine level about twice as closely (``docs/performance.md``).
     coarse_physics
         ``[physics]`` keys the coarse level changes, as sorted ``(key, value)`` pairs (a dict in a study file,
-        checked like ``[physics]``); default none. Any deterministic coarse level leaves the estimate unbiased;
-        what it changes only moves the correlation with the fine level and the cost. Meant for solver
-        tolerances (``mechanics_rtol``; measured in ``docs/performance.md``); a changed physical parameter lowers
-        the correlation.
+        checked like ``[physics]``); default ``mechanics_rtol = 1e-2`` (the fine level's default is 1e-4): 11 %
+        less coarse time, V_rel moved by 0.1 % typically and 1.6 % at most on 12 paper designs x 30 phantoms,
+        against a fine-minus-coarse spread of 10-25 % of V_rel (``docs/performance.md``). Any deterministic
+        coarse level leaves the estimate unbiased; what it changes only moves the correlation with the fine
+        level and the cost. Meant for solver tolerances; a changed physical parameter lowers the correlation.
     pilot
         Phantoms evaluated fine first (raised so that every touch count has two), >= 2.
     se_factor
@@ -178,13 +199,16 @@ class MultilevelSettings:
     """
 
     coarse: MeshSettings = field(default_factory=lambda: MeshSettings(size_mm=4.0, channel_cells=1))
-    coarse_physics: tuple[tuple[str, object], ...] = ()
+    coarse_electrics: str = "fine"
+    coarse_physics: tuple[tuple[str, object], ...] = (("mechanics_rtol", 1e-2),)
     pilot: int = 15
     se_factor: float = 1.1
 
     def __post_init__(self) -> None:
         if not isinstance(self.coarse, MeshSettings):
             raise ParameterError("coarse", "a mesh table, e.g. { size_mm = 4.0, channel_cells = 1 }", self.coarse)
+        object.__setattr__(self, "coarse_electrics", v.choice("coarse_electrics", self.coarse_electrics,
+                                                             COARSE_ELECTRICS))
         given = self.coarse_physics
         try:
             items = dict(given.items() if isinstance(given, Mapping) else given)
@@ -236,3 +260,11 @@ class AdaptiveSettings:
         b = self.batch_size
         if isinstance(b, bool) or not isinstance(b, int) or b < 1:
             raise ParameterError("batch_size", "an integer >= 1 (phantoms added per step)", b)
+
+
+def coarse_level_settings(fine: EvalSettings, ml: MultilevelSettings) -> EvalSettings:
+    """The evaluation settings of a two-level sweep's coarse level, from the fine level's and ``[multilevel]``."""
+    physics = tuple({**fine.physics, **dict(ml.coarse_physics)}.items())
+    if ml.coarse_electrics == "fine":
+        return dataclasses.replace(fine, mechanics_mesh=ml.coarse, physics_items=physics)
+    return dataclasses.replace(fine, mesh=ml.coarse, physics_items=physics)
