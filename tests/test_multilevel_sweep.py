@@ -283,3 +283,12 @@ def test_coarse_evaluations_whose_electrics_fell_back_are_marked_and_counted(tmp
     assert sorted(marked) == [("coarse", 3, 0)] * len(study.designs)
     assert {r["electrics_on"] for r in rows if r["level"] == "fine"} == {"fine"}
     assert "folded in 2 of 72 evaluations" in (res.out_dir / "report.txt").read_text()
+
+
+def test_the_figure_says_it_shows_a_two_level_estimate_and_how_many_fine_phantoms(tmp_path, saved_figures):
+    study = _study(tmp_path)
+    ml = run_sweep(study, fake_two_level, progress=False).multilevel
+    title = saved_figures[0].axes[0].get_title()
+    lo, hi = min(ml.n_fine), max(ml.n_fine)
+    span = f"{lo}-{hi}" if lo != hi else f"{lo}"
+    assert f"two-level: {len(study.phantoms)} phantoms per design at the coarse level, {span} on this mesh" in title

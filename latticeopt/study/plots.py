@@ -57,6 +57,11 @@ def _convergence_status(study: Study) -> str:
 def _phantom_caption(study: Study, summary: Sequence[dict]) -> str:
     n = max((s["n"] for s in summary), default=0)
     total = len(study.phantoms)
+    if study.multilevel is not None:  # every phantom at the coarse level, a subset on the mesh named above
+        fine = [s["n_fine"] for s in summary if s.get("n_fine")]
+        span = f"{min(fine)}-{max(fine)}" if fine and min(fine) != max(fine) else f"{fine[0] if fine else 0}"
+        return (f"two-level: {n} phantoms per design at the coarse level, {span} on this mesh "
+                f"(SE <= {study.multilevel.se_factor:g} x all on it)")
     if study.adaptive is not None:  # designs ran different numbers of phantoms
         low = min((s["n"] for s in summary if s["n"]), default=0)
         return f"{low}-{n} of {total} phantoms per design (until SE <= {study.adaptive.target_se:g})"
