@@ -59,7 +59,12 @@ from latticeopt.errors import (  # noqa: E402
 from latticeopt.mesh import mesh_design  # noqa: E402
 from latticeopt.study.config import load_study  # noqa: E402
 from latticeopt.study.multilevel import predicted_fine_count  # noqa: E402
-from latticeopt.study.settings import COARSE_ELECTRICS, MultilevelSettings  # noqa: E402
+from latticeopt.study.settings import (  # noqa: E402
+    COARSE_ELECTRICS,
+    EvalSettings,
+    MultilevelSettings,
+    coarse_level_settings,
+)
 
 ROOT = Path(__file__).resolve().parent.parent
 CACHE = ROOT / "meshes"
@@ -264,8 +269,10 @@ def main() -> None:
         ap.error("--coarse: the coarse mesh must differ from the fine one")
     at = _bench_order(map_strata)[:a.phantoms]  # study positions of the benchmark phantoms
     phantoms = [paper.phantoms[i] for i in at]
-    # (electrics mesh, mechanics mesh) per level, as latticeopt.study.settings.coarse_level_settings makes them
-    coarse = (a.fine, a.coarse_mesh) if a.coarse_electrics == "fine" else (a.coarse_mesh, None)
+    # (electrics mesh, mechanics mesh) per level, as a sweep's coarse level has them
+    c = coarse_level_settings(EvalSettings(mesh=a.fine),
+                              MultilevelSettings(coarse=a.coarse_mesh, coarse_electrics=a.coarse_electrics))
+    coarse = (c.mesh, c.mechanics_mesh)
     levels = {"fine": (a.fine, None), **({"coarse": coarse} if two_level else {})}
     print(f"load average before: {os.getloadavg()[0]:.2f} ({os.cpu_count()} cores)")
     print(f"{a.phantoms} phantoms (1-3 touches) per design and level; " +

@@ -93,12 +93,18 @@ def model_seconds(study: Study, run: MultilevelRun) -> dict[str, float]:
     return {"coarse": coarse, "fine": fine, "two_level": coarse + fine, "plain": plain}
 
 
+def _fell_back(e) -> bool:
+    """True if a coarse evaluation's interpolated hydrogel folded and its electrics ran on the mechanics mesh
+    (:class:`latticeopt.coupled.CoupledModel`)."""
+    return (e.extra or {}).get("electrics_mesh") == "mechanics"
+
+
 def _electrics_on(level: str, ml, e) -> str:
     """The mesh an evaluation's electrics ran on: ``"fine"``, or ``"coarse"`` (coarse electrics, or a coarse
-    level whose interpolated hydrogel folded, :class:`latticeopt.coupled.CoupledModel`)."""
+    level whose interpolated hydrogel folded)."""
     if level == "fine":
         return "fine"
-    if ml.coarse_electrics == "coarse" or (e.extra or {}).get("electrics_mesh") == "mechanics":
+    if ml.coarse_electrics == "coarse" or _fell_back(e):
         return "coarse"
     return "fine"
 
@@ -157,7 +163,7 @@ def write_multilevel_outputs(study: Study, run: MultilevelRun, out: Path) -> tup
                      f"{cost['plain'] / 3600:.2f} h (each design's mean fine seconds x its phantoms), a ratio of "
                      f"{cost['two_level'] / cost['plain']:.2f} (seconds of one worker each, summed)")
     if ml.coarse_electrics == "fine":
-        folded = sum((e.extra or {}).get("electrics_mesh") == "mechanics" for e in run.coarse)
+        folded = sum(_fell_back(e) for e in run.coarse)
         if folded:
             lines.append(f"coarse level: the interpolated hydrogel folded in {folded} of {len(run.coarse)} "
                          "evaluations, whose electrics ran on the coarse mesh instead (results.csv electrics_on)")
