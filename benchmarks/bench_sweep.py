@@ -11,13 +11,13 @@ studies/paper_fig4.toml, the honest figure for the map) it times the first ``--p
 paper_fig4.toml's set, touch counts 1, 2, 3 in turn, on two levels: the fine mesh (paper_fig4.toml's, the
 converged one; ``--size`` and ``--channel-cells`` override it) and, for ``multilevel``, the coarse level: the
 mechanics on the mesh ``--coarse SIZE:CELLS`` (the fine settings with grid size and channel cells replaced;
-default 4 mm and 1 cell, as a sweep's ``[multilevel]``) and the electrics on the fine mesh, or with
-``--coarse-electrics coarse`` on the coarse one. The nodes column gives the mechanics mesh. Each level runs with
-one worker and then with two processes (one BLAS thread each). A table row per design, level and worker count
-gives set-up (mesh read, mechanics operator, reference electrics), mechanics and electrics seconds, and per
-phantom the operation counts the time follows: Newton increments (linear solves), factorizations (shifted
-retries included) and Krylov iterations (one back-substitution each). The machine's load moves the seconds; the
-counts are stable.
+default 4 mm and 1 cell) with the coarse physics (``mechanics_rtol = 1e-2``), as a sweep's ``[multilevel]``, and
+the electrics on the fine mesh, or with ``--coarse-electrics coarse`` on the coarse one. The nodes column gives
+the mechanics mesh. Each level runs with one worker and then with two processes (one BLAS thread each). A table
+row per design, level and worker count gives set-up (mesh read, mechanics operator, reference electrics),
+mechanics and electrics seconds, and per phantom the operation counts the time follows: Newton increments (linear
+solves), factorizations (shifted retries included) and Krylov iterations (one back-substitution each). The
+machine's load moves the seconds; the counts are stable.
 
 Precision (latticeopt.study.multilevel): from the phantoms solved on both levels, per touch count var(F) and
 var(D = F - C); the plain SE of a design's mean over the map's 300 phantoms (sqrt(var(F) / N), stratified); the
@@ -50,7 +50,7 @@ for _var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
 import numpy as np  # noqa: E402
 
 from latticeopt import LatticeDesign  # noqa: E402
-from latticeopt.coupled import CoupledModel  # noqa: E402
+from latticeopt.coupled import CoupledModel, PhysicsSettings  # noqa: E402
 from latticeopt.errors import (  # noqa: E402
     ConvergenceError,
     MeshError,
@@ -81,10 +81,10 @@ def _bench_order(strata: np.ndarray) -> np.ndarray:
 
 
 def _run(args):
-    (w, t), (mesh_settings, mechanics_mesh), chunk = args
+    (w, t), level, chunk = args
     t0 = time.perf_counter()
-    model = CoupledModel(LatticeDesign(width_mm=w, thickness_mm=t), mesh_settings, cache_dir=CACHE,
-                         mechanics_mesh=mechanics_mesh)
+    model = CoupledModel(LatticeDesign(width_mm=w, thickness_mm=t), level.mesh,
+                         PhysicsSettings.from_dict(level.physics), cache_dir=CACHE, mechanics_mesh=level.mechanics_mesh)
     setup = time.perf_counter() - t0
     rows = {}
     for i, ph in chunk:
@@ -100,11 +100,11 @@ def _run(args):
     return setup, rows, model.mechanics_mesh.n_nodes
 
 
-def _measure(design, mesh, phantoms, workers: int) -> dict:
-    """Run ``phantoms`` split over ``workers`` processes; rows back in phantom order."""
+def _measure(design, level: EvalSettings, phantoms, workers: int) -> dict:
+    """Run ``phantoms`` with ``level``'s meshes and physics, split over ``workers`` processes; rows in order."""
     indexed = list(enumerate(phantoms))
     with ProcessPoolExecutor(workers) as ex:
-        out = list(ex.map(_run, [(design, mesh, indexed[i::workers]) for i in range(workers)]))
+        out = list(ex.map(_run, [(design, level, indexed[i::workers]) for i in range(workers)]))
     rows = {i: r for _, rr, _ in out for i, r in rr.items()}
     table = np.array([rows[i] for i in range(len(phantoms))])
     return {"setup": float(np.mean([s for s, _, _ in out])), "rows": table, "nodes": out[0][2],
@@ -269,14 +269,14 @@ def main() -> None:
         ap.error("--coarse: the coarse mesh must differ from the fine one")
     at = _bench_order(map_strata)[:a.phantoms]  # study positions of the benchmark phantoms
     phantoms = [paper.phantoms[i] for i in at]
-    # (electrics mesh, mechanics mesh) per level, as a sweep's coarse level has them
-    c = coarse_level_settings(EvalSettings(mesh=a.fine),
-                              MultilevelSettings(coarse=a.coarse_mesh, coarse_electrics=a.coarse_electrics))
-    coarse = (c.mesh, c.mechanics_mesh)
-    levels = {"fine": (a.fine, None), **({"coarse": coarse} if two_level else {})}
+    # each level's meshes and physics as a sweep has them (the coarse level's looser mechanics_rtol included)
+    fine = EvalSettings(mesh=a.fine)
+    levels = {"fine": fine, **({"coarse": coarse_level_settings(fine, MultilevelSettings(
+        coarse=a.coarse_mesh, coarse_electrics=a.coarse_electrics))} if two_level else {})}
     print(f"load average before: {os.getloadavg()[0]:.2f} ({os.cpu_count()} cores)")
     print(f"{a.phantoms} phantoms (1-3 touches) per design and level; " +
-          "; ".join(f"{k} mesh {(m[1] or m[0]).as_dict()}" for k, m in levels.items()) +
+          "; ".join(f"{k} mesh {(s.mechanics_mesh or s.mesh).as_dict()}, physics {s.physics}"
+                    for k, s in levels.items()) +
           (f"; coarse electrics on the {a.coarse_electrics} mesh" if two_level else ""))
     print("| design w,t mm | level | nodes | workers | set-up s | mechanics s / phantom | Newton increments | "
           "factorizations | Krylov iterations | electrics s | seconds / phantom | throughput s / phantom | failed |")
@@ -286,7 +286,7 @@ def main() -> None:
         meas[design] = {}
         for level, m in levels.items():
             # mesh once here, so the workers read the cache instead of meshing side by side
-            for each in filter(None, m):
+            for each in filter(None, (m.mesh, m.mechanics_mesh)):
                 mesh_design(LatticeDesign(width_mm=design[0], thickness_mm=design[1]), each, cache_dir=CACHE)
             meas[design][level] = {k: _measure(design, m, phantoms, k) for k in a.workers}
             for k in a.workers:
