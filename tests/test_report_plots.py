@@ -55,3 +55,17 @@ def test_figures_say_whether_the_mesh_is_converged(tmp_path, saved_figures):
     assert "NOT converged" in titles[0]
     assert "NOT converged" not in titles[1] and "converged" in titles[1]
     assert "NOT converged" not in titles[2] and "converged" in titles[2]
+
+
+def test_a_long_two_level_title_stays_inside_the_figure(tmp_path, saved_figures):
+    study = study_from_dict({"name": "paper_width_by_thickness_map", "out": str(tmp_path / "out"),
+                             "grid": {"thickness_mm": [1.0, 3.0], "width_mm": [0, 2, 4]},
+                             "phantoms": {"seed": 1, "counts": {"1": 2, "2": 2}}, "multilevel": {"pilot": 4}})
+    summary = [dict(s, n_fine=n) for s, n in zip(_summary(study), (2, 3, 3, 2, 3, 3))]
+    plot_lines(study, summary, tmp_path / "lines.png")
+    plot_heatmap(study, summary, tmp_path / "heat.png")
+    for fig in saved_figures:
+        fig.canvas.draw()  # lays the title out (constrained layout) before it is measured
+        title = fig.axes[0].title.get_window_extent()
+        assert "2-3 on this mesh" in " ".join(fig.axes[0].get_title().split())
+        assert title.x0 >= 0 and title.x1 <= fig.bbox.x1, (title, fig.bbox)

@@ -7,6 +7,7 @@ every design), and how many phantoms each mean is over.
 from __future__ import annotations
 
 import math
+import textwrap
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -52,6 +53,12 @@ def _convergence_status(study: Study) -> str:
         if got.size_mm > ref.size_mm or got.channel_cells < ref.channel_cells or got.layer_cells < ref.layer_cells:
             return "NOT converged (coarser than the default mesh): a quick look"
     return "converged (at least the default mesh)"
+
+
+def _title(first: str, study: Study) -> str:
+    """A figure title: ``first``, then the mesh caption, each line wrapped to fit over the axes (a long caption
+    is otherwise cut at both edges of the figure)."""
+    return "\n".join(textwrap.fill(line, 70) for line in f"{first}\n{_mesh_caption(study)}".splitlines())
 
 
 def _phantom_caption(study: Study, summary: Sequence[dict]) -> str:
@@ -107,7 +114,7 @@ def plot_lines(study: Study, summary: Sequence[dict], path: Path) -> Path:
                         color=color, label=None if lattice else label)
     ax.set_xlabel(x_field.replace("_mm", " (mm)") + ("; 0 = uniform layer" if any_uniform else ""))
     ax.set_ylabel("mean $V_{rel}$ (± SE)")
-    ax.set_title(f"{study.name}: {_phantom_caption(study, summary)}\n{_mesh_caption(study)}", fontsize=10)
+    ax.set_title(_title(f"{study.name}: {_phantom_caption(study, summary)}", study), fontsize=8.5)
     ax.grid(alpha=0.3)
     handles, labels = ax.get_legend_handles_labels()
     if any_uniform:
@@ -147,8 +154,7 @@ def plot_heatmap(study: Study, summary: Sequence[dict], path: Path) -> Path | No
             ax.text(c, r, f"{val:.4f}", ha="center", va="center", fontsize=7,
                     color="black" if val > mid else "white")
     fig.colorbar(im, ax=ax, label="mean $V_{rel}$")
-    ax.set_title(f"{study.name}: mean V_rel, {_phantom_caption(study, summary)}\n{_mesh_caption(study)}",
-                 fontsize=10)
+    ax.set_title(_title(f"{study.name}: mean V_rel, {_phantom_caption(study, summary)}", study), fontsize=8.5)
     fig.savefig(path, dpi=130)
     return path
 
