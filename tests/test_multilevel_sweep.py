@@ -288,7 +288,7 @@ def test_coarse_evaluations_whose_electrics_fell_back_are_marked_and_counted(tmp
 def test_the_figure_says_it_shows_a_two_level_estimate_and_how_many_fine_phantoms(tmp_path, saved_figures):
     study = _study(tmp_path)
     ml = run_sweep(study, fake_two_level, progress=False).multilevel
-    title = saved_figures[0].axes[0].get_title()
+    title = " ".join(saved_figures[0].axes[0].get_title().split())  # the title wraps its lines
     lo, hi = min(ml.n_fine), max(ml.n_fine)
     span = f"{lo}-{hi}" if lo != hi else f"{lo}"
     assert f"two-level: {len(study.phantoms)} phantoms per design at the coarse level, {span} on this mesh" in title
