@@ -50,7 +50,7 @@ for _var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
 import numpy as np  # noqa: E402
 
 from latticeopt import LatticeDesign  # noqa: E402
-from latticeopt.coupled import CoupledModel, PhysicsSettings  # noqa: E402
+from latticeopt.coupled import model_for_settings  # noqa: E402
 from latticeopt.errors import (  # noqa: E402
     ConvergenceError,
     MeshError,
@@ -83,8 +83,7 @@ def _bench_order(strata: np.ndarray) -> np.ndarray:
 def _run(args):
     (w, t), level, chunk = args
     t0 = time.perf_counter()
-    model = CoupledModel(LatticeDesign(width_mm=w, thickness_mm=t), level.mesh,
-                         PhysicsSettings.from_dict(level.physics), cache_dir=CACHE, mechanics_mesh=level.mechanics_mesh)
+    model = model_for_settings(LatticeDesign(width_mm=w, thickness_mm=t), level)
     setup = time.perf_counter() - t0
     rows = {}
     for i, ph in chunk:
@@ -270,7 +269,7 @@ def main() -> None:
     at = _bench_order(map_strata)[:a.phantoms]  # study positions of the benchmark phantoms
     phantoms = [paper.phantoms[i] for i in at]
     # each level's meshes and physics as a sweep has them (the coarse level's looser mechanics_rtol included)
-    fine = EvalSettings(mesh=a.fine)
+    fine = EvalSettings(mesh=a.fine, cache_dir=str(CACHE))
     levels = {"fine": fine, **({"coarse": coarse_level_settings(fine, MultilevelSettings(
         coarse=a.coarse_mesh, coarse_electrics=a.coarse_electrics))} if two_level else {})}
     print(f"load average before: {os.getloadavg()[0]:.2f} ({os.cpu_count()} cores)")

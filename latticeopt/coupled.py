@@ -339,10 +339,16 @@ def _touches(phantom) -> list[Touch]:
     return [t if isinstance(t, Touch) else Touch(*t) for t in phantom.touches]
 
 
+def model_for_settings(design: LatticeDesign, settings) -> CoupledModel:
+    """The :class:`CoupledModel` a sweep evaluates ``design`` with under ``settings`` (a study's ``EvalSettings``:
+    its mesh, ``[physics]``, cache folder and mechanics mesh)."""
+    return CoupledModel(design, settings.mesh, PhysicsSettings.from_dict(settings.physics), settings.cache_dir,
+                        settings.mechanics_mesh)
+
+
 def prepare_design(design: LatticeDesign, settings):
     """Build a design's :class:`CoupledModel` once; returns ``run(phantom) -> dict`` (the sweep's chunk hook)."""
-    model = CoupledModel(design, settings.mesh, PhysicsSettings.from_dict(settings.physics), settings.cache_dir,
-                         settings.mechanics_mesh)
+    model = model_for_settings(design, settings)
     return lambda phantom: _result_dict(model.simulate(_touches(phantom)), model.setup_seconds)
 
 
