@@ -206,6 +206,21 @@ def test_cli_set_pilot_runs_and_prints_the_report(tmp_path):
     assert "two-level estimator" in done.stdout and "pilot 9" in done.stdout
 
 
+def test_cli_dry_run_counts_what_each_level_has_stored(tmp_path):
+    study = _study(tmp_path, overrides=['model = "test_multilevel_sweep:fake_two_level"'])  # as --evaluate sets it
+    before = _cli(tmp_path, "--dry-run")
+    assert before.returncode == 0, before.stderr
+    assert "72 evaluations, 0 stored" in before.stdout and "0 of 72 stored" in before.stdout
+    assert not (tmp_path / "out" / "results.sqlite").exists()
+    assert _cli(tmp_path).returncode == 0
+    with ResultStore(study.out_dir, readonly=True) as store:
+        n_fine = len(store.done_keys(study.settings.key))
+        n_coarse = len(store.done_keys(coarse_level_settings(study.settings, study.multilevel).key))
+    assert n_coarse == 72 and 2 * 6 <= n_fine < 72
+    after = _cli(tmp_path, "--dry-run")
+    assert f"72 evaluations, {n_fine} stored" in after.stdout and "72 of 72 stored" in after.stdout
+
+
 def test_a_fine_failure_leaves_the_phantom_out_for_every_design_at_both_levels(tmp_path):
     study = _study(tmp_path)
     res = run_sweep(study, fake_two_level_failing, progress=False)

@@ -42,10 +42,8 @@ def register(sub) -> None:
 
 
 def run_sweep_command(args: argparse.Namespace) -> int:
-    from pathlib import Path
-
     from ..study.config import load_study
-    from ..study.store import ResultStore
+    from ..study.settings import coarse_level_settings
     from ..study.sweep import run_sweep
 
     check_study_file(args.study)
@@ -53,21 +51,18 @@ def run_sweep_command(args: argparse.Namespace) -> int:
     check_parallel_args(args)
     check_study_outputs(args, study)
     if args.dry_run:
-        stored = 0
-        if (Path(study.out_dir) / "results.sqlite").exists():
-            with ResultStore(study.out_dir, readonly=True) as store:
-                done = store.done_keys(study.settings.key)
-            stored = sum((d.content_hash(), p.key, study.settings.key) in done for d, p in study.tasks())
+        stored = _stored_counts(study)
         print(f"{study.name} ({study.kind}): {len(study.designs)} designs x {len(study.phantoms)} phantoms = "
-              f"{study.n_tasks} evaluations, {stored} stored; model {study.settings.model}; "
+              f"{study.n_tasks} evaluations, {stored[study.settings.key]} stored; model {study.settings.model}; "
               f"mesh {study.settings.mesh.mesher} {study.settings.mesh.size_mm:g} mm; out {study.out_dir}")
         if study.multilevel is not None:
             ml = study.multilevel
+            coarse = coarse_level_settings(study.settings, ml)
             extra = "".join(f", {k} = {v}" for k, v in ml.coarse_physics)
             print(f"two-level: every phantom also with the mechanics on the coarse mesh {ml.coarse.size_mm:g} mm "
-                  f"(electrics on the {ml.coarse_electrics} mesh{extra}), the fine level "
-                  f"on a pilot of {ml.pilot} and more until SE <= {ml.se_factor:g} x the plain fine SE (counted above: "
-                  "the fine level if every phantom were run)")
+                  f"(electrics on the {ml.coarse_electrics} mesh{extra}; {stored[coarse.key]} of {study.n_tasks} "
+                  f"stored), the fine level on a pilot of {ml.pilot} and more until SE <= {ml.se_factor:g} x the "
+                  "plain fine SE (counted above: the fine level if every phantom were run)")
         if study.adaptive is not None:
             ad = study.adaptive
             print(f"adaptive: each design runs {ad.min_per_design} phantoms, then {ad.batch_size} more at a time "
@@ -82,3 +77,17 @@ def run_sweep_command(args: argparse.Namespace) -> int:
     for name, path in result.outputs.items():
         print(f"wrote {name}: {path}")
     return 0
+
+
+def _stored_counts(study) -> dict[str, int]:
+    """Evaluations of the study's tasks its store holds (ok or failed), per settings key; 0 for a missing key."""
+    from collections import Counter
+    from pathlib import Path
+
+    from ..study.store import ResultStore
+
+    if not (Path(study.out_dir) / "results.sqlite").exists():
+        return Counter()
+    tasks = {(d.content_hash(), p.key) for d, p in study.tasks()}
+    with ResultStore(study.out_dir, readonly=True) as store:
+        return Counter(s for d, p, s in store.done_keys() if (d, p) in tasks)
