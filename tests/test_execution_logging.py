@@ -8,7 +8,7 @@ import pytest
 
 pytest.importorskip("distributed")
 
-from latticeopt.study.execution import make_backend  # noqa: E402
+from latticeopt.study.execution import dask_client  # noqa: E402
 
 
 @pytest.fixture
@@ -28,10 +28,8 @@ def root_level():
 @pytest.mark.parametrize("verbose", [False, True])
 def test_distributed_loggers_follow_the_process_level(root_level, verbose):
     root_level(logging.INFO if verbose else logging.WARNING)
-    backend = make_backend("dask", 1, None)
-    try:
+    with dask_client(1, None) as (_, threads):
         level = logging.getLogger("distributed").getEffectiveLevel()
         assert level == (logging.INFO if verbose else logging.WARNING)
         assert not logging.getLogger("distributed.scheduler").isEnabledFor(logging.INFO) or verbose
-    finally:
-        backend.close(abort=False)
+        assert threads == 1

@@ -20,12 +20,12 @@ failure would bias every comparison, so the sweep stores what has arrived, appen
 ``error.log`` in the output folder and raises :class:`~latticeopt.errors.ModelBugError` with a one-line
 message. How failed phantoms enter the tables: :mod:`latticeopt.study.report`.
 
-Backends. ``"local"``: with ``jobs == 1`` the tasks run in this process; with more, in a
-``ProcessPoolExecutor`` of fresh (``spawn``) processes that inherit ``OMP/MKL/OPENBLAS_NUM_THREADS=1`` from the
-environment set around the pool, so BLAS/MKL start single-threaded in every worker (each result records the
-thread counts the worker's loaded BLAS/OpenMP libraries report; more than one is logged as a warning).
-``"dask"``: dask.distributed futures on the cluster at ``scheduler`` (an address or a ``Client``); without one,
-a local cluster of ``jobs`` single-threaded worker processes (:mod:`latticeopt.study.execution`).
+Backends (joblib, :mod:`latticeopt.study.execution`). ``"local"``: with ``jobs == 1`` the tasks run in this
+process; with more, in loky worker processes started with ``OMP/MKL/OPENBLAS_NUM_THREADS=1``, so BLAS/MKL
+start single-threaded in every worker (each result records the thread counts the worker's loaded BLAS/OpenMP
+libraries report; more than one is logged as a warning), and kept for the next run of this process.
+``"dask"``: joblib's dask backend on the cluster at ``scheduler`` (an address or a ``Client``); without one, a
+local cluster of ``jobs`` single-threaded worker processes.
 """
 
 from __future__ import annotations

@@ -1,0 +1,82 @@
+"""``run_tasks``: every task once, workers reused only while the environment holds, early stop kills them."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import time
+
+import pytest
+
+from latticeopt.study.execution import run_tasks
+
+ENV = "LATTICEOPT_TEST_EXECUTION"
+
+
+def _square(x: int) -> tuple[int, int, str | None]:
+    return x * x, os.getpid(), os.environ.get(ENV)
+
+
+def _sleep(seconds: float) -> int:
+    time.sleep(seconds)
+    return os.getpid()
+
+
+def _raise(x: int) -> int:
+    raise IndexError(f"task {x}")
+
+
+def _collect(fn, args, jobs):
+    out = {}
+    with contextlib.closing(run_tasks(fn, ((i, a) for i, a in enumerate(args)), jobs=jobs)) as batches:
+        for batch in batches:
+            for tag, result in batch:
+                assert tag not in out
+                out[tag] = result
+    return out
+
+
+def _gone(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as fh:
+            return fh.read().rsplit(")", 1)[1].split()[0] == "Z"
+    except FileNotFoundError:
+        return True
+
+
+def test_every_task_once_in_workers_as_inline():
+    args = [(x,) for x in range(20)]
+    inline = _collect(_square, args, 1)
+    pooled = _collect(_square, args, 2)
+    assert {k: v[0] for k, v in pooled.items()} == {k: v[0] for k, v in inline.items()} == {
+        i: i * i for i in range(20)}
+    assert {v[1] for v in inline.values()} == {os.getpid()}
+    assert os.getpid() not in {v[1] for v in pooled.values()}
+
+
+def test_workers_are_reused_while_the_environment_holds_and_restarted_when_it_changes(monkeypatch):
+    monkeypatch.setenv(ENV, "a")
+    first = _collect(_square, [(x,) for x in range(8)], 2)
+    again = _collect(_square, [(x,) for x in range(8)], 2)
+    assert {v[1] for v in again.values()} <= {v[1] for v in first.values()}
+    assert {v[2] for v in again.values()} == {"a"}
+    monkeypatch.setenv(ENV, "b")  # a worker started before cannot see it: fresh workers
+    changed = _collect(_square, [(x,) for x in range(8)], 2)
+    assert {v[2] for v in changed.values()} == {"b"}
+    assert not {v[1] for v in changed.values()} & {v[1] for v in first.values()}
+
+
+def test_stopping_early_kills_the_running_workers():
+    gen = run_tasks(_sleep, ((i, a) for i, a in enumerate([(0.0,), (60.0,), (60.0,), (60.0,)])), jobs=2)
+    (_, pid), = next(gen)
+    t0 = time.monotonic()
+    gen.close()
+    while not _gone(pid) and time.monotonic() - t0 < 20:
+        time.sleep(0.05)
+    assert _gone(pid) and time.monotonic() - t0 < 20  # not after its 60 s task
+
+
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_a_task_exception_reaches_the_caller_with_its_type(jobs):
+    with pytest.raises(IndexError, match="task"):
+        _collect(_raise, [(x,) for x in range(4)], jobs)
