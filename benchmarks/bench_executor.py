@@ -48,13 +48,9 @@ def _sleep(seconds: float) -> int:
 
 def _run(fn, args_list, jobs):
     t0 = time.perf_counter()
-    first = None
-    pids = []
-    with contextlib.closing(run_tasks(fn, ((i, a) for i, a in enumerate(args_list)), jobs=jobs)) as batches:
-        for batch in batches:
-            first = first if first is not None else time.perf_counter() - t0
-            pids += [pid for _, pid in batch]
-    return time.perf_counter() - t0, first, len(pids), len(set(pids))
+    with contextlib.closing(run_tasks(fn, ((i, a) for i, a in enumerate(args_list)), jobs=jobs)) as results:
+        pids = [pid for _, pid in results]
+    return time.perf_counter() - t0, len(pids), len(set(pids))
 
 
 def _alive(pids) -> int:
@@ -71,7 +67,7 @@ def _abort(jobs):
     """Start ``2 * jobs`` 30 s sleeps, stop after the first result of a quick task; time until workers die."""
     args = [(0.2,)] + [(30.0,)] * (2 * jobs)
     gen = run_tasks(_sleep, ((i, a) for i, a in enumerate(args)), jobs=jobs)
-    pids = {pid for _, pid in next(gen)}
+    pids = {next(gen)[1]}
     time.sleep(0.5)  # the sleeps are running now
     pids |= {int(p) for p in os.listdir("/proc") if p.isdigit() and _is_child(int(p))}
     t0 = time.perf_counter()
@@ -103,16 +99,16 @@ def main() -> None:
     args = ap.parse_args()
     j = args.jobs
     rows = []
-    wall, first, n, procs = _run(_import_model, [()] * j, j)
+    wall, n, procs = _run(_import_model, [()] * j, j)
     rows.append(("fresh run importing the model", f"{wall:.2f} s", f"{n} tasks, {procs} workers"))
-    wall, first, n, procs = _run(_import_model, [()] * j, j)
+    wall, n, procs = _run(_import_model, [()] * j, j)
     rows.append(("second run, the same", f"{wall:.3f} s", f"{n} tasks, {procs} workers"))
-    wall, first, n, procs = _run(_pid, [()] * args.tiny, j)
+    wall, n, procs = _run(_pid, [()] * args.tiny, j)
     rows.append(("dispatch per tiny task", f"{1e3 * wall / n:.2f} ms", f"{n} tasks in {wall:.2f} s, {procs} workers"))
     t0 = time.process_time()
     _busy(args.busy_s)
     ideal = args.busy * (time.process_time() - t0) / j
-    wall, first, n, procs = _run(_busy, [(args.busy_s,)] * args.busy, j)
+    wall, n, procs = _run(_busy, [(args.busy_s,)] * args.busy, j)
     rows.append(("busy tasks: ideal / wall", f"{ideal / wall:.3f}", f"{n} x {args.busy_s} s CPU, wall {wall:.2f} s "
                  f"(ideal {ideal:.2f} s), {procs} workers"))
     closed, gone, n = _abort(j)

@@ -116,11 +116,10 @@ class SensorSimulator:
         tasks = ((i, (self.model, s[i:i + chunk])) for i in range(0, len(s), chunk))
         workers = min(jobs, -(-len(s) // chunk))
         with tqdm(total=len(s), desc="forward solves", unit="frame", disable=not progress, leave=False) as bar, \
-                contextlib.closing(run_tasks(_simulate_chunk, tasks, jobs=workers)) as batches:
-            for batch in batches:
-                for i, volts in batch:
-                    out[i:i + chunk] = volts
-                    bar.update(len(volts))
+                contextlib.closing(run_tasks(_simulate_chunk, tasks, jobs=workers)) as done:
+            for i, volts in done:
+                out[i:i + chunk] = volts
+                bar.update(len(volts))
         return out
 
 

@@ -28,11 +28,10 @@ def _raise(x: int) -> int:
 
 def _collect(fn, args, jobs):
     out = {}
-    with contextlib.closing(run_tasks(fn, ((i, a) for i, a in enumerate(args)), jobs=jobs)) as batches:
-        for batch in batches:
-            for tag, result in batch:
-                assert tag not in out
-                out[tag] = result
+    with contextlib.closing(run_tasks(fn, ((i, a) for i, a in enumerate(args)), jobs=jobs)) as results:
+        for tag, result in results:
+            assert tag not in out
+            out[tag] = result
     return out
 
 
@@ -68,7 +67,7 @@ def test_workers_are_reused_while_the_environment_holds_and_restarted_when_it_ch
 
 def test_stopping_early_kills_the_running_workers():
     gen = run_tasks(_sleep, ((i, a) for i, a in enumerate([(0.0,), (60.0,), (60.0,), (60.0,)])), jobs=2)
-    (_, pid), = next(gen)
+    _, pid = next(gen)
     t0 = time.monotonic()
     gen.close()
     while not _gone(pid) and time.monotonic() - t0 < 20:

@@ -182,11 +182,10 @@ def _run_parallel(blocks, results, bar, workers: int, args) -> None:
 
     model, seed, pool, gcfg, mcfg = args
     tasks = ((b, (model, k, seed, pool, gcfg, mcfg)) for b, k in enumerate(blocks))
-    with contextlib.closing(run_tasks(_simulate_block, tasks, jobs=workers)) as batches:
-        for batch in batches:
-            for b, result in batch:
-                results[b] = result
-                bar.update(len(blocks[b]))
+    with contextlib.closing(run_tasks(_simulate_block, tasks, jobs=workers)) as done:
+        for b, result in done:
+            results[b] = result
+            bar.update(len(blocks[b]))
 
 
 @dataclass(frozen=True, eq=False)

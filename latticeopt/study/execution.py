@@ -136,12 +136,12 @@ def run_tasks(fn, tasks, *, backend: str = "local", jobs: int = 1, scheduler=Non
 
     Yields
     ------
-    list of (tag, result)
-        One finished task at a time, in the order they finish.
+    (tag, result)
+        Each task as it finishes.
 
     Notes
     -----
-    Use it as ``with contextlib.closing(run_tasks(...)) as batches:``: leaving the block early (an exception,
+    Use it as ``with contextlib.closing(run_tasks(...)) as results:``: leaving the block early (an exception,
     Ctrl-C, ``break``) stops the workers at once (loky kills its processes, dask cancels the tasks); a worker's
     exception is raised here with its type, after which the workers are stopped as well.
     """
@@ -161,8 +161,9 @@ def run_tasks(fn, tasks, *, backend: str = "local", jobs: int = 1, scheduler=Non
                                    pre_dispatch=str(_INFLIGHT_PER_WORKER * n))
         outputs = parallel(joblib.delayed(_tagged)(fn, tag, args) for tag, args in tasks)
         try:
-            for result in outputs:
-                yield [result]
+            # not `yield from`: closing would then close joblib's generator before the warning filter below
+            for result in outputs:  # noqa: UP028
+                yield result
         finally:
             with warnings.catch_warnings():
                 # joblib warns that closing early cancels the running tasks: stopping them is the point

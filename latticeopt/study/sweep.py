@@ -317,35 +317,34 @@ def _execute(tasks, todo, evaluate, settings, store, backend, jobs, scheduler, p
     warned_threads = False
     try:
         with _sigterm_as_interrupt(), contextlib.closing(run_tasks(evaluate_chunk, chunks, backend=backend,
-                                                                   jobs=jobs, scheduler=scheduler)) as batches:
-            for batch in batches:
-                # Everything that arrived is stored before a bug stops the sweep.
+                                                                   jobs=jobs, scheduler=scheduler)) as results:
+            for chunk, payloads in results:
+                # The chunk's phantoms before a bug are stored before it stops the sweep.
                 bug = None
-                for chunk, payloads in batch:
-                    for i, payload in zip(chunk, payloads):  # a bug payload ends its chunk early
-                        design, phantom = tasks[i]
-                        if payload["status"] == "bug":
-                            bug = bug or (design, phantom, payload)
-                            break
-                        try:
-                            row = result_to_evaluation(payload, design, phantom, settings)
-                        except LatticeoptError as exc:  # the model broke its contract: a bug as well
-                            bug = bug or (design, phantom, {"error": str(exc), "where": "result",
-                                                            "traceback": traceback.format_exc()})
-                            break
-                        store.put(row)
-                        stored += 1
-                        failed += not row.ok
-                        if not row.ok:
-                            log.warning("phantom %d of %s failed: %s", phantom.index, design.describe(),
-                                        (row.error or "").splitlines()[0])
-                        many = {k: n for k, n in payload["worker"]["blas_threads"].items() if n > 1}
-                        if many and (jobs > 1 or backend == "dask") and not warned_threads:
-                            log.warning("worker %s runs BLAS/OpenMP with more than one thread: %s",
-                                        payload["worker"]["pid"], many)
-                            warned_threads = True
-                        bar.update(1)
-                        bar.set_postfix(failed=failed, refresh=False)
+                for i, payload in zip(chunk, payloads):  # a bug payload ends its chunk early
+                    design, phantom = tasks[i]
+                    if payload["status"] == "bug":
+                        bug = (design, phantom, payload)
+                        break
+                    try:
+                        row = result_to_evaluation(payload, design, phantom, settings)
+                    except LatticeoptError as exc:  # the model broke its contract: a bug as well
+                        bug = (design, phantom, {"error": str(exc), "where": "result",
+                                                 "traceback": traceback.format_exc()})
+                        break
+                    store.put(row)
+                    stored += 1
+                    failed += not row.ok
+                    if not row.ok:
+                        log.warning("phantom %d of %s failed: %s", phantom.index, design.describe(),
+                                    (row.error or "").splitlines()[0])
+                    many = {k: n for k, n in payload["worker"]["blas_threads"].items() if n > 1}
+                    if many and (jobs > 1 or backend == "dask") and not warned_threads:
+                        log.warning("worker %s runs BLAS/OpenMP with more than one thread: %s",
+                                    payload["worker"]["pid"], many)
+                        warned_threads = True
+                    bar.update(1)
+                    bar.set_postfix(failed=failed, refresh=False)
                 if bug is not None:
                     raise _model_bug(store.path.parent, settings, stored, *bug)
     except KeyboardInterrupt:
