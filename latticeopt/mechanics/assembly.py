@@ -182,6 +182,23 @@ class NeoHookeanOperator:
         other._set_geometry(grad, vol)
         return other
 
+    def with_moduli(self, mu_MPa: np.ndarray, kappa_MPa: np.ndarray) -> NeoHookeanOperator:
+        """The same operator (pattern, maps, reference shared) with shear and bulk moduli given per tet.
+
+        Parameters
+        ----------
+        mu_MPa, kappa_MPa : ndarray, shape (M,)
+            Moduli of every tet in *mesh* order (MPa); the patch bulk modulus is their volume average.
+        """
+        mu, kappa = (np.asarray(a, dtype=float) for a in (mu_MPa, kappa_MPa))
+        ok = mu.shape == kappa.shape == self.order.shape and np.all(mu > 0) and np.all(kappa > 0)
+        if not ok:
+            raise ValueError(f"mu_MPa, kappa_MPa: expected {len(self.order)} positive values each")
+        other = copy.copy(self)
+        other.mu, other._kappa_tet = mu[self.order], kappa[self.order]
+        other._set_geometry(self.grad, self.vol)
+        return other
+
     # -- one-off structure --------------------------------------------------------------------------
     def _build_patch_nodes(self, P: int) -> None:
         M = len(self.tets)

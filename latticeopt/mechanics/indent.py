@@ -31,6 +31,7 @@ every load step and every phantom of a mesh: :class:`IndentationSolver` holds it
 
 from __future__ import annotations
 
+import copy
 import logging
 import time
 
@@ -43,7 +44,7 @@ from ..mesh.tetmesh import TetMesh
 from ..touches import Touch, check_touches
 from .assembly import Evaluation, NeoHookeanOperator
 from .indenters import Constraints, conform_punch_edges
-from .settings import IndentationResult, IndentSettings
+from .settings import Converged, IndentationResult, IndentSettings
 from .tangent import TangentSolves, _StepFailed
 
 log = logging.getLogger(__name__)
@@ -98,14 +99,29 @@ class IndentationSolver(TangentSolves):
         self.linear = SymmetricSolver(self._matrix(self._ev0.data, isD), positive_definite=True,
                                       backend=settings.backend, factorize=False,
                                       precision=settings.factorization_precision)
+        self._latest = None  # the converged state whose phantom the factorization in ``linear`` belongs to
         self._shift = 0.0  # relative diagonal shift of the current factorization (0: the tangent itself)
         self.setup_seconds = time.perf_counter() - t0
         log.info("indentation solver: %d dofs, %d nonzeros, %s, set up in %.2f s", n, self.op.nnz,
                  self.linear.backend, self.setup_seconds)
 
     # -- one phantom ----------------------------------------------------------------------------------
-    def solve(self, touches) -> IndentationResult:
-        """Indent with ``touches`` (Touch objects or ``(x, y, r, d)`` sequences, mm); see the module docstring."""
+    def with_moduli(self, mu_MPa: np.ndarray, kappa_MPa: np.ndarray) -> IndentationSolver:
+        """This solver with shear and bulk moduli given per tet (mesh order, MPa), sharing the sparsity pattern and
+        the symbolic factorization (a density layout's materials, :mod:`latticeopt.density`)."""
+        other = copy.copy(self)
+        other.op = self.op.with_moduli(mu_MPa, kappa_MPa)
+        other._ev0 = other.op.evaluate(np.zeros((self.mesh.n_nodes, 3)))
+        other._latest = None
+        return other
+
+    def solve(self, touches, u0: np.ndarray | None = None) -> IndentationResult:
+        """Indent with ``touches`` (Touch objects or ``(x, y, r, d)`` sequences, mm); see the module docstring.
+
+        ``u0`` (shape ``(N, 3)``, mm): a displacement to start Newton from at full depth, the converged state
+        of the same touches on a nearby design (an optimizer's previous iterate). The press is then solved in
+        one load step when that converges, and by the usual load stepping from zero when it does not.
+        """
         t_start = time.perf_counter()
         s = self.settings
         touches = check_touches(touches, self.x_range, self.y_range, self.thickness_mm)
@@ -127,6 +143,22 @@ class IndentationSolver(TangentSolves):
         lam, history, halvings = 0.0, [], 0
         dlam_max = 1.0 if d_max == 0 else min(1.0, s.max_step_mm / d_max)
         dlam = dlam_max
+        warm, warm_ok = u0 is not None and d_max > 0, False
+        if warm:
+            u0 = np.asarray(u0, dtype=float)
+            if u0.shape != u.shape or not np.all(np.isfinite(u0)):
+                raise ValueError(f"u0: expected a finite array of shape {u.shape}, got {u0.shape}")
+            ev0 = self._evaluate(u0)
+            try:
+                if ev0.inverted:
+                    raise _StepFailed("the start inverts elements", np.inf, ev0.min_J)
+                u, ev, norms = self._newton(u0.copy(), ev0, cons, 1.0, final=True)
+                lam, warm_ok = 1.0, True
+                history.append(tuple(norms))
+            except _StepFailed as exc:
+                log.info("warm start failed (%s); load stepping from zero", exc.reason)
+                self._factor_isD = None
+                u = np.zeros_like(u)
         while lam < 1.0 and d_max > 0:
             lam_new = min(1.0, lam + dlam)
             active = [a.copy() for a in cons.active]
@@ -169,8 +201,11 @@ class IndentationSolver(TangentSolves):
                  "krylov_iterations": self._n_krylov, "precision": self.linear.precision, "method": s.method,
                  "volumetric": s.volumetric, "indenter": s.indenter, "in_plane": s.in_plane, "punch_edge": s.punch_edge,
                  "moved_reference_nodes": n_moved, "contact_nodes": [int(len(n)) for n in cons.contact_nodes()]}
+        D = cons.dirichlet(1.0)[0]
+        self._latest = Converged(op=self._op, evaluation=ev if ev.data is not None else self._evaluate(u), dofs=D,
+                                 contact_nodes=tuple(cons.contact_nodes()), warm_start=warm_ok)
         return IndentationResult(
-            touches=touches, displacement_mm=u, deformed_mesh=self.mesh.with_nodes(ref + u),
+            touches=touches, state=self._latest, displacement_mm=u, deformed_mesh=self.mesh.with_nodes(ref + u),
             forces_N=forces, newton_steps=self._n_solves, load_steps=len(history), step_halvings=halvings,
             max_hydrogel_stretch=smax, min_hydrogel_stretch=smin, min_det_F=float(J.min()),
             residual_norms=tuple(history), timings=clock, solver=stats)

@@ -15,7 +15,7 @@ from .assembly import VOLUMETRIC
 from .indenters import IN_PLANE, INDENTERS, PUNCH_EDGES
 from .materials import Materials
 
-__all__ = ["DOUBLE_ABOVE_KAPPA_OVER_MU", "METHODS", "IndentSettings", "IndentationResult"]
+__all__ = ["DOUBLE_ABOVE_KAPPA_OVER_MU", "METHODS", "Converged", "IndentSettings", "IndentationResult"]
 
 METHODS = ("newton", "newton-krylov")
 #: ``precision="auto"`` factorizes in double precision when some material's ``kappa / mu`` exceeds this
@@ -146,6 +146,32 @@ class IndentSettings:
 
 
 @dataclass(frozen=True, eq=False)
+class Converged:
+    """The converged state of an indentation, what an adjoint solve needs (see
+    :meth:`~latticeopt.mechanics.IndentationSolver.adjoint_solve`).
+
+    Attributes
+    ----------
+    op
+        The phantom's :class:`~latticeopt.mechanics.assembly.NeoHookeanOperator` (its reference nodes).
+    evaluation
+        Residual and tangent at the converged displacement.
+    dofs
+        The constrained DOFs (bottom face and indenters), sorted.
+    contact_nodes
+        Top nodes held by each indenter.
+    warm_start
+        True when the press converged in one step from a given start (``solve(..., u0=...)``).
+    """
+
+    op: object
+    evaluation: object
+    dofs: np.ndarray
+    contact_nodes: tuple
+    warm_start: bool = False
+
+
+@dataclass(frozen=True, eq=False)
 class IndentationResult:
     """Outcome of one indentation (mm, N).
 
@@ -177,6 +203,8 @@ class IndentationResult:
         Seconds: ``assembly`` (incl. line-search evaluations), ``factorization``, ``solve``, ``other``, ``total``.
     solver
         Backend, DOFs, nonzeros, factorizations, settings summary.
+    state
+        The :class:`Converged` state (for adjoint solves).
     """
 
     touches: tuple
@@ -192,6 +220,7 @@ class IndentationResult:
     residual_norms: tuple
     timings: dict
     solver: dict
+    state: Converged | None = field(default=None, repr=False)
 
     def summary(self) -> dict:
         """JSON-ready scalars (no fields)."""

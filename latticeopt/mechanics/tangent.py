@@ -18,6 +18,7 @@ import time
 import numpy as np
 import scipy.sparse as sp
 
+from ..errors import ConvergenceError
 from ..linalg import gmres
 from .assembly import Evaluation
 
@@ -151,3 +152,52 @@ class TangentSolves:
         self._n_solves += 1
         du[D] = jump
         return du
+
+    def adjoint_solve(self, result, rhs: np.ndarray, values: np.ndarray | None = None, rtol: float = 1e-10
+                      ) -> np.ndarray:
+        """Solve the converged tangent of ``result``: ``K_ff x_f = rhs_f`` with ``x_D = values`` (default 0).
+
+        The adjoint of a function of the converged displacement (``rhs`` its gradient) or, with ``values`` on the
+        constrained DOFs, the response of the free DOFs to a change of the prescribed ones. GMRES on the exact
+        converged tangent, preconditioned by the factorization the last Newton iterations used (when it belongs to
+        ``result``'s press), else by a fresh factorization of the converged tangent; stops at
+        ``|residual| <= rtol |rhs|``.
+
+        Parameters
+        ----------
+        result : IndentationResult
+            A press solved by this solver (its :attr:`~IndentationResult.state`).
+        rhs : ndarray, shape (3N,)
+            Right-hand side (its constrained entries are ignored), interleaved x, y, z per node.
+        values : ndarray, shape (len(result.state.dofs),), optional
+            Prescribed values of the constrained DOFs.
+
+        Returns
+        -------
+        ndarray, shape (3N,)
+        """
+        st = result.state
+        D, ev = st.dofs, st.evaluation
+        isD = np.zeros(self.op.n_dofs, dtype=bool)
+        isD[D] = True
+        jump = np.zeros(len(D)) if values is None else np.asarray(values, dtype=float)
+        b = self._free_rhs(ev, D, jump, -np.asarray(rhs, dtype=float))
+        b[D] = 0.0
+        matvec = self._symmetric_operator(self._constrained(ev.data, isD))
+        atol = rtol * max(float(np.linalg.norm(b)), 1e-300)
+        t = time.perf_counter()
+        ok = False
+        if self._latest is st and self._factor_isD is not None and np.array_equal(self._factor_isD, isD):
+            x, its, ok = gmres(matvec, b, lambda r: self.linear.solve(r).ravel(), atol, 40)
+            self._n_krylov += its
+        if not ok:  # no factorization of this press at hand, or too stale: factorize the converged tangent
+            self._factorize(ev.data, isD)
+            self._factor_isD, self._latest = isD, st
+            x, its, ok = gmres(matvec, b, lambda r: self.linear.solve(r).ravel(), atol, 40)
+            self._n_krylov += its
+            if not ok:
+                raise ConvergenceError(f"adjoint solve: GMRES on the converged tangent reached no relative residual "
+                                       f"{rtol:g} in 40 iterations")
+        self._clock["adjoint"] = self._clock.get("adjoint", 0.0) + time.perf_counter() - t
+        x[D] = jump
+        return x

@@ -258,6 +258,15 @@ def grid_mesh(design: LatticeDesign, size_mm: float = 2.0, channel_cells: int = 
     """
     require_axis_aligned(design)
     x, y, z = grid_coordinates(design, size_mm, channel_cells, layer_cells, cell_counts, electrode_edges)
+    return tensor_mesh(design, x, y, z)
+
+
+def tensor_mesh(design: LatticeDesign, x: np.ndarray, y: np.ndarray, z: np.ndarray) -> TetMesh:
+    """The Kuhn-split tensor mesh on the grid lines ``x``, ``y``, ``z`` (mm, sorted), labelled by ``design``.
+
+    Regions are exact only where every material interface of the design lies on a grid line (what
+    :func:`grid_coordinates` guarantees); the density mesher (:mod:`latticeopt.density.mesh`) adds its own lines.
+    """
     X, Y, Z = np.meshgrid(x, y, z, indexing="ij")
     # x fastest, matching _kuhn_tets' numbering.
     nodes = np.stack([X.transpose(2, 1, 0).ravel(), Y.transpose(2, 1, 0).ravel(),

@@ -1,0 +1,235 @@
+"""Coupled simulation of a density layout, with adjoint gradients of ``V_rel``, the punch force and the gel's
+stretch with respect to the density cells.
+
+>>> import numpy as np
+>>> from latticeopt import LatticeDesign, MeshSettings
+>>> from latticeopt.density import DensityModel
+>>> from latticeopt.touches import Touch
+>>> model = DensityModel(LatticeDesign(thickness_mm=3), 8, MeshSettings(size_mm=6))
+>>> ev = model.evaluate(np.full((8, 8), 0.7), [[Touch(50, 50, 12.0, 2.0)]])
+>>> ev.dv_rel_ddensity.shape, bool(ev.v_rel > 0)
+((8, 8), True)
+
+For one press, ``V_rel = mean_r |V_r - Vref_r| / |Vref_r|`` depends on the density through the reference
+conductivities, the deformed conductivities and the deformed geometry. Its gradient is the sum of
+
+* the electrics at fixed geometry: ``sum_r a_r dV_r/dsigma + b_r dVref_r/dsigma`` with ``a = dV_rel/dV``,
+  ``b = dV_rel/dVref`` (:func:`~latticeopt.electrics.sensitivity.weighted_sensitivities`, no extra solve), times
+  ``dsigma/drho``;
+* the mechanics: ``-lambda^T dR/dm dm/drho`` with ``K_ff lambda_f = dV_rel/du`` (the electrics' derivative with
+  respect to the deformed nodes), one solve on the converged tangent
+  (:meth:`~latticeopt.mechanics.IndentationSolver.adjoint_solve`, :mod:`latticeopt.mechanics.sensitivity`).
+
+The force and the stretch measure take one more solve each. :class:`DensityEvaluation` keeps the two parts of the
+``V_rel`` gradient apart (``electrics`` and ``mechanics``), so each can be checked on its own.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..coupled import PhysicsSettings, relative_change
+from ..design import LatticeDesign
+from ..electrics.forward import ForwardModel
+from ..electrics.sensitivity import weighted_sensitivities
+from ..errors import ParameterError
+from ..mechanics.indent import IndentationSolver
+from ..mechanics.sensitivity import moduli_sensitivity, stretch_pnorm
+from ..mesh import MeshSettings
+from ..touches import Touch
+from .field import InterpolationLaw, check_density
+from .mesh import cell_matrix, density_mesh
+
+
+@dataclass(frozen=True, eq=False)
+class PressResult:
+    """One press of a density layout (mm, N, V); gradients per density cell, shape ``(n, n)``."""
+
+    v_rel: float
+    force_N: float
+    stretch: float
+    voltages: np.ndarray
+    newton_steps: int
+    warm_start: bool
+    dv_rel: np.ndarray | None = None
+    dv_rel_electrics: np.ndarray | None = None
+    dv_rel_mechanics: np.ndarray | None = None
+    dforce: np.ndarray | None = None
+    dstretch: np.ndarray | None = None
+    displacement_mm: np.ndarray | None = field(default=None, repr=False)
+    timings: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True, eq=False)
+class DensityEvaluation:
+    """A density layout over a list of phantoms: means over the phantoms and each press.
+
+    Attributes
+    ----------
+    v_rel, force_N, stretch
+        Means over the phantoms of ``V_rel``, the total punch force (N) and the gel's smooth maximum stretch.
+    dv_rel_ddensity, dforce_ddensity, dstretch_ddensity
+        Their gradients with respect to the density cells, shape ``(n, n)`` (None without ``gradient``).
+    presses
+        One :class:`PressResult` per phantom.
+    reference_voltages
+        The untouched layout's measurements, shape ``(n_rows,)``.
+    """
+
+    v_rel: float
+    force_N: float
+    stretch: float
+    dv_rel_ddensity: np.ndarray | None
+    dforce_ddensity: np.ndarray | None
+    dstretch_ddensity: np.ndarray | None
+    presses: tuple
+    reference_voltages: np.ndarray
+
+    def summary(self) -> dict:
+        return {"v_rel": self.v_rel, "force_N": self.force_N, "stretch": self.stretch,
+                "presses": [{"v_rel": p.v_rel, "force_N": p.force_N, "stretch": p.stretch,
+                             "newton_steps": p.newton_steps, "warm_start": p.warm_start, "timings": p.timings}
+                            for p in self.presses]}
+
+
+class DensityModel:
+    """Mesh, cell map, mechanics pattern and electrics topology of density layouts of ``n x n`` cells.
+
+    Parameters
+    ----------
+    design
+        The sensor: size, stack (``thickness_mm`` is the conductive layer's) and electrodes; its layout is
+        replaced by the density.
+    n_cells
+        Density cells per side.
+    mesh_settings
+        ``size_mm`` and ``layer_cells`` of the mesh (:func:`~latticeopt.density.mesh.density_mesh`).
+    physics
+        :class:`~latticeopt.coupled.PhysicsSettings`; the gel and silicone moduli are the two ends of the
+        interpolation. Only ``conductivity_law = "geometry"``.
+    law
+        :class:`~latticeopt.density.field.InterpolationLaw`.
+    """
+
+    def __init__(self, design: LatticeDesign, n_cells: int, mesh_settings: MeshSettings | None = None,
+                 physics: PhysicsSettings | None = None, law: InterpolationLaw | None = None):
+        t0 = time.perf_counter()
+        self.physics = physics or PhysicsSettings()
+        if self.physics.conductivity_law != "geometry":
+            raise ParameterError("conductivity_law", "'geometry' for density layouts", self.physics.conductivity_law)
+        self.law = law or InterpolationLaw()
+        self.n = check_density(np.zeros((n_cells, n_cells)), "n_cells").shape[0]
+        self.mesh = density_mesh(design, self.n, mesh_settings)
+        self.cells, self.layer_tets = cell_matrix(self.mesh, self.n)
+        indent = self.physics.indent_settings()
+        m = indent.materials
+        self._ends = {"mu": (m.silicone.mu_MPa, m.hydrogel.mu_MPa),
+                      "kappa": (m.silicone.kappa_MPa, m.hydrogel.kappa_MPa)}
+        mu, kappa = m.moduli_MPa(self.mesh.region)
+        self._mu0, self._kappa0 = mu, kappa
+        self.mechanics = IndentationSolver(self.mesh, indent)
+        p = self.physics
+        self.electrics = ForwardModel(self.mesh, p.sigma_S_per_m, p.contact_impedance_ohm_m2, current_A=p.current_A)
+        if not np.array_equal(self.electrics.gel_tet_ids, self.layer_tets):
+            raise AssertionError("the electrics' tets are the conductive layer's")  # pragma: no cover
+        self.setup_seconds = time.perf_counter() - t0
+
+    def materials(self, density: np.ndarray):
+        """Per-tet ``(mu, kappa, sigma)`` and their derivatives in the tet density, for ``density`` (n, n)."""
+        rho = self.cells @ check_density(density).ravel()
+        mu, kappa = self._mu0.copy(), self._kappa0.copy()
+        mu[self.layer_tets], dmu = self.law.modulus(rho, *self._ends["mu"])
+        kappa[self.layer_tets], dkappa = self.law.modulus(rho, *self._ends["kappa"])
+        sigma, dsigma = self.law.conductivity(rho, self.physics.sigma_S_per_m)
+        return rho, (mu, kappa, sigma), (dmu, dkappa, dsigma)
+
+    def evaluate(self, density: np.ndarray, phantoms, gradient: bool = True,
+                 warm: list[np.ndarray | None] | None = None) -> DensityEvaluation:
+        """``V_rel``, force and stretch of ``density`` over ``phantoms`` (lists of touches), with gradients.
+
+        Parameters
+        ----------
+        density : ndarray, shape (n, n)
+        phantoms
+            A list of phantoms, each a list of :class:`~latticeopt.touches.Touch` (or ``(x, y, r, d)``).
+        gradient
+            Compute the adjoint gradients.
+        warm
+            Per phantom, a displacement to start Newton from (``PressResult.displacement_mm`` of a nearby
+            density), or None.
+        """
+        rho, (mu, kappa, sigma), (dmu, dkappa, dsigma) = self.materials(density)
+        solver = self.mechanics.with_moduli(mu, kappa)
+        ref = self.electrics.with_conductivity(sigma)
+        v_ref = ref.voltages
+        w_stretch = np.zeros(self.mesh.n_tets)
+        w_stretch[self.layer_tets] = rho * np.abs(self.mesh.tet_volumes_mm3()[self.layer_tets])
+        presses = []
+        for k, touches in enumerate(phantoms):
+            touches = [t if isinstance(t, Touch) else Touch(*t) for t in touches]
+            u0 = None if warm is None else warm[k]
+            presses.append(self._press(solver, ref, v_ref, touches, u0, w_stretch, (dmu, dkappa, dsigma), gradient))
+
+        def mean(name):
+            return None if not gradient else np.mean([getattr(p, name) for p in presses], axis=0)
+
+        return DensityEvaluation(
+            v_rel=float(np.mean([p.v_rel for p in presses])), force_N=float(np.mean([p.force_N for p in presses])),
+            stretch=float(np.mean([p.stretch for p in presses])), dv_rel_ddensity=mean("dv_rel"),
+            dforce_ddensity=mean("dforce"), dstretch_ddensity=mean("dstretch"), presses=tuple(presses),
+            reference_voltages=v_ref)
+
+    def _to_cells(self, per_tet: np.ndarray) -> np.ndarray:
+        return (self.cells.T @ per_tet).reshape(self.n, self.n)
+
+    def _press(self, solver, ref, v_ref, touches, u0, w_stretch, derivs, gradient) -> PressResult:
+        t0 = time.perf_counter()
+        ind = solver.solve(touches, u0=u0)
+        t1 = time.perf_counter()
+        deformed = ref.with_nodes(ind.deformed_mesh.nodes_mm)
+        v = deformed.voltages
+        v_rel = relative_change(v, v_ref)
+        st = ind.state
+        u = ind.displacement_mm
+        p_s = self.law.stretch_exponent
+        stretch, dS_du, dS_dw = stretch_pnorm(st.op, u, w_stretch, p_s)
+        force = float(np.sum(ind.forces_N))
+        t2 = time.perf_counter()
+        out = dict(v_rel=v_rel, force_N=force, stretch=stretch, voltages=v, newton_steps=ind.newton_steps,
+                   warm_start=st.warm_start, displacement_mm=u)
+        if not gradient:
+            return PressResult(**out, timings={"mechanics": t1 - t0, "electrics": t2 - t1, "total": t2 - t0})
+        dmu, dkappa, dsigma = derivs
+        lt = self.layer_tets
+        # V_rel = mean |V - Vref| / |Vref|: its partials in V and Vref
+        s = np.sign(v - v_ref) / np.abs(v_ref) / len(v)
+        a = s
+        b = -s - np.abs(v - v_ref) * np.sign(v_ref) / v_ref ** 2 / len(v)
+        ds_def, dx_def = weighted_sensitivities(deformed, a)
+        ds_ref, _ = weighted_sensitivities(ref, b)
+        electrics = self._to_cells((ds_def + ds_ref) * dsigma)
+        g_u = np.zeros((self.mesh.n_nodes, 3))
+        g_u[ref.node_ids] = dx_def
+
+        def through_moduli(lam):
+            s_mu, s_kappa = moduli_sensitivity(st.op, u, lam)
+            return self._to_cells(s_mu[lt] * dmu + s_kappa[lt] * dkappa)
+
+        lam = solver.adjoint_solve(ind, g_u.ravel())
+        mechanics = -through_moduli(lam)
+        # total force = sum over the held top nodes of -R_z: c = -e_z there
+        c = np.zeros(3 * self.mesh.n_nodes)
+        for nodes in st.contact_nodes:
+            c[3 * nodes + 2] = -1.0
+        y = solver.adjoint_solve(ind, np.zeros_like(c), values=c[st.dofs])
+        dforce = through_moduli(y)
+        lam_s = solver.adjoint_solve(ind, dS_du)
+        dstretch = self._to_cells(dS_dw[lt] * np.abs(self.mesh.tet_volumes_mm3()[lt])) - through_moduli(lam_s)
+        t3 = time.perf_counter()
+        return PressResult(**out, dv_rel=electrics + mechanics, dv_rel_electrics=electrics,
+                           dv_rel_mechanics=mechanics, dforce=dforce, dstretch=dstretch,
+                           timings={"mechanics": t1 - t0, "electrics": t2 - t1, "gradient": t3 - t2,
+                                    "total": t3 - t0})

@@ -1,0 +1,161 @@
+"""Density layouts: adjoint gradients of V_rel, force and stretch against central finite differences, the split
+of the V_rel gradient into its electrics and mechanics parts, the sharp (0/1) limit against a conforming mesh of
+the same layout, warm starts, and the density file's checks."""
+
+import numpy as np
+import pytest
+
+from latticeopt import LatticeDesign, MeshSettings
+from latticeopt.coupled import PhysicsSettings, relative_change
+from latticeopt.density import DensityModel, density_of_design, load_density, save_density
+from latticeopt.density.mesh import density_mesh
+from latticeopt.electrics.forward import ForwardModel
+from latticeopt.electrics.sensitivity import weighted_sensitivities
+from latticeopt.errors import ParameterError
+from latticeopt.mechanics import IndentationSolver
+from latticeopt.mesh.grid import tensor_mesh
+from latticeopt.touches import Touch
+
+N = 8
+PRESS = [[Touch(40.0, 55.0, 12.0, 2.5)]]
+H = 1e-4  # central-difference step in density units (truncation error ~1e-8 relative here)
+
+
+@pytest.fixture(scope="module")
+def model():
+    # tight Newton tolerance: the adjoint is exact only at the exact equilibrium
+    return DensityModel(LatticeDesign(thickness_mm=3.0), N, MeshSettings(size_mm=6.0),
+                        PhysicsSettings(mechanics_rtol=1e-10))
+
+
+@pytest.fixture(scope="module")
+def base(model):
+    rng = np.random.default_rng(1)
+    d = 0.3 + 0.4 * rng.random((N, N))
+    return d, model.evaluate(d, PRESS)
+
+
+def smooth_direction(seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    y, x = np.mgrid[0:N, 0:N] / N
+    a, b, c = rng.normal(size=3)
+    return a * np.sin(2 * np.pi * x + c) * np.cos(np.pi * y) + b * x * y
+
+
+@pytest.mark.parametrize("name, grad", [("v_rel", "dv_rel_ddensity"), ("force_N", "dforce_ddensity"),
+                                        ("stretch", "dstretch_ddensity")])
+def test_gradient_matches_central_differences(model, base, name, grad):
+    d, ev = base
+    direction = smooth_direction(7)
+    plus = model.evaluate(d + H * direction, PRESS, gradient=False)
+    minus = model.evaluate(d - H * direction, PRESS, gradient=False)
+    fd = (getattr(plus, name) - getattr(minus, name)) / (2 * H)
+    ad = float(np.sum(getattr(ev, grad) * direction))
+    assert abs(ad - fd) <= 1e-4 * abs(fd)
+
+
+def test_gradient_per_cell(model, base):
+    d, ev = base
+    for i, j in [(3, 2), (0, 5)]:  # a cell under the press and one at an electrode
+        e = np.zeros((N, N))
+        e[i, j] = 1.0
+        fd = (model.evaluate(d + H * e, PRESS, gradient=False).v_rel
+              - model.evaluate(d - H * e, PRESS, gradient=False).v_rel) / (2 * H)
+        assert abs(ev.dv_rel_ddensity[i, j] - fd) <= 1e-4 * abs(fd) + 1e-9 * np.abs(ev.dv_rel_ddensity).max()
+
+
+def _vrel_split(model, d, u, d_mech):
+    """V_rel with the electrics' conductivities from ``d`` on the displacement of ``d_mech`` (``u`` if None)."""
+    _, (mu, kappa, sigma), _ = model.materials(d)
+    ref = model.electrics.with_conductivity(sigma)
+    if d_mech is not None:
+        _, (mu, kappa, _), _ = model.materials(d_mech)
+        ind = model.mechanics.with_moduli(mu, kappa).solve(PRESS[0])
+        u = ind.deformed_mesh.nodes_mm
+    return relative_change(ref.with_nodes(u).voltages, ref.voltages)
+
+
+def test_electrics_and_mechanics_parts_each_match_differences(model, base):
+    d, ev = base
+    press = ev.presses[0]
+    direction = smooth_direction(3)
+    nodes = model.mesh.nodes_mm + press.displacement_mm  # no punch rim moves a layer node
+    # electrics: the displacement held, the conductivities moved
+    fd_e = (_vrel_split(model, d + H * direction, nodes, None)
+            - _vrel_split(model, d - H * direction, nodes, None)) / (2 * H)
+    assert abs(np.sum(press.dv_rel_electrics * direction) - fd_e) <= 1e-4 * abs(fd_e)
+    # mechanics: the conductivities held, the moduli moved
+    fd_m = (_vrel_split(model, d, None, d + H * direction) - _vrel_split(model, d, None, d - H * direction)) / (2 * H)
+    assert abs(np.sum(press.dv_rel_mechanics * direction) - fd_m) <= 1e-4 * abs(fd_m)
+    assert abs(fd_e) > 1e-6 and abs(fd_m) > 1e-6  # both parts matter, so both checks can fail
+
+
+def test_electrics_sensitivity_against_the_jacobian_and_node_differences():
+    mesh = density_mesh(LatticeDesign(thickness_mm=2.0), 4, MeshSettings(size_mm=8.0))
+    rng = np.random.default_rng(0)
+    fm = ForwardModel(mesh, sigma_S_per_m=1.0 + rng.random(np.count_nonzero(mesh.region == 1)))
+    a = rng.normal(size=len(fm.voltages))
+    d_sigma, d_nodes = weighted_sensitivities(fm, a)
+    np.testing.assert_allclose(d_sigma, a @ fm.jacobian(), rtol=1e-9, atol=1e-12 * np.abs(d_sigma).max())
+    move = rng.normal(size=fm.mesh.nodes_mm.shape)  # every gel node, electrode patches included
+    h = 1e-5
+    fd = (a @ fm.with_nodes(fm.mesh.nodes_mm + h * move).voltages
+          - a @ fm.with_nodes(fm.mesh.nodes_mm - h * move).voltages) / (2 * h)
+    assert abs(np.sum(d_nodes * move) - fd) <= 1e-6 * abs(fd)
+
+
+def test_sharp_density_reproduces_the_conforming_mesh():
+    """A 0/1 density whose edges lie on the density mesh's lines gives the V_rel of the same mesh with the
+    layout's regions (the conforming model: electrics on the gel alone), up to the insulating floor."""
+    design = LatticeDesign(width_mm=12.5, pitch_mm=25.0, thickness_mm=3.0)
+    n, settings = 16, MeshSettings(size_mm=6.25)
+    d = density_of_design(design, n)
+    assert set(np.unique(d)) == {0.0, 1.0}
+    model = DensityModel(design, n, settings, PhysicsSettings(mechanics_rtol=1e-8))
+    v_density = model.evaluate(d, PRESS, gradient=False).v_rel
+    m = model.mesh
+    x, y, z = (np.unique(m.nodes_mm[:, i]) for i in range(3))
+    conforming = tensor_mesh(design, x, y, z)
+    gel = np.zeros(m.n_tets, dtype=bool)
+    gel[model.layer_tets] = model.cells @ d.ravel() > 0.5
+    assert np.array_equal(conforming.region == 1, gel)  # the same mesh, the same layout
+    ind = IndentationSolver(conforming, PhysicsSettings(mechanics_rtol=1e-8).indent_settings()).solve(PRESS[0])
+    fm = ForwardModel(conforming)
+    v_conf = relative_change(fm.with_nodes(ind.deformed_mesh.nodes_mm).voltages, fm.voltages)
+    assert abs(v_density - v_conf) <= 1e-4 * v_conf
+
+
+def test_warm_start_saves_newton_steps(model, base):
+    d, ev = base
+    nearby = np.clip(d + 0.02 * smooth_direction(5), 0, 1)
+    cold = model.evaluate(nearby, PRESS, gradient=False).presses[0]
+    warm = model.evaluate(nearby, PRESS, gradient=False, warm=[ev.presses[0].displacement_mm]).presses[0]
+    assert warm.warm_start and not cold.warm_start
+    assert warm.newton_steps < cold.newton_steps
+    assert abs(warm.v_rel - cold.v_rel) <= 1e-7 * cold.v_rel
+
+
+@pytest.mark.parametrize("content, words", [
+    ({"density": np.full((3, 3), 0.5)}, "4 <= n <= 400"),
+    ({"density": np.full((6, 5), 0.5)}, "shape (6, 5)"),
+    ({"density": np.full((6, 6), np.nan)}, "NaN"),
+    ({"density": np.full((6, 6), 1.5)}, "values in [0, 1]"),
+    ({"other": np.full((6, 6), 0.5)}, "members ['other']"),
+    ({"density": np.array([{"a": 1}] * 36, dtype=object).reshape(6, 6)}, "pickle"),
+])
+def test_bad_density_files_name_the_problem(tmp_path, content, words):
+    path = tmp_path / "d.npz"
+    np.savez(path, **content)
+    with pytest.raises(ParameterError) as exc:
+        load_density(path)
+    assert words.lower() in str(exc.value).lower() and "--density" in str(exc.value)
+
+
+def test_density_files_round_trip_and_smooth_projection(tmp_path):
+    design = LatticeDesign(width_mm=4.0, thickness_mm=3.0)
+    sharp = density_of_design(design, 50)
+    np.testing.assert_allclose(sharp.mean(), design.hydrogel_area_fraction(), rtol=1e-9)
+    smooth = density_of_design(design, 50, smoothing_mm=1.0)
+    assert 0 < smooth.min() and smooth.max() < 1 and abs(smooth.mean() - sharp.mean()) < 0.05
+    save_density(tmp_path / "d.npz", sharp)
+    np.testing.assert_array_equal(load_density(tmp_path / "d.npz"), sharp)
