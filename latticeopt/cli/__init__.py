@@ -15,8 +15,8 @@ import sys
 from ..errors import LatticeoptError, ParameterError
 
 #: Subcommand modules in the order ``--help`` lists them.
-COMMAND_MODULES = ["mesh", "indent", "forward", "simulate", "sweep", "optimize", "calibrate", "sensitivity", "export",
-                   "recon", "recon_learn", "merit", "classify"]
+COMMAND_MODULES = ["mesh", "indent", "forward", "simulate", "density", "sweep", "optimize", "calibrate",
+                   "sensitivity", "export", "recon", "recon_learn", "merit", "classify"]
 
 
 class _Parser(argparse.ArgumentParser):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from pathlib import Path
 
 from ._common import (
     add_design_args,
@@ -35,6 +36,19 @@ def register(sub) -> None:
     g.add_argument("--contact-impedance", type=float, default=d.contact_impedance_ohm_m2,
                    help="electrode contact impedance (ohm m^2)")
     add_physics_arg(g)
+    d = p.add_argument_group("density layout (instead of the layout options)")
+    d.add_argument("--density", type=Path, default=None, metavar="FILE.npz",
+                   help="a density layout: 'density', an (n, n) array in [0, 1] over the sensor square, row i "
+                        "covering y in [i L/n, (i+1) L/n), 4 <= n <= 400 (write one with 'latticeopt "
+                        "export-density'); the layout options (--width, --pattern, --layout, ...) are ignored")
+    d.add_argument("--gradient", type=Path, default=None, metavar="OUT.npz",
+                   help="with --density: write dv_rel_ddensity, dforce_ddensity and dstretch_ddensity, shape (n, n), "
+                        "by adjoints")
+    d.add_argument("--interpolation", action="append", default=[], metavar="KEY=VALUE",
+                   help="with --density: material interpolation (stiffness_exponent, conductivity_exponent, "
+                        "conductivity_floor, stretch_exponent); repeatable")
+    d.add_argument("--plot", type=Path, default=None, metavar="PNG",
+                   help="with --gradient: the layout and the dV_rel/d rho map as a picture")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of text")
     p.set_defaults(func=run_simulate)
 
@@ -42,6 +56,10 @@ def register(sub) -> None:
 def run_simulate(args) -> int:
     from ..coupled import CoupledModel, PhysicsSettings
 
+    if args.density is not None or args.gradient is not None or args.interpolation or args.plot is not None:
+        from .density import run_density
+
+        return run_density(args)
     check_mesh_args(args)
     check_touch_count(args)
     design = design_from_args(args)

@@ -61,6 +61,7 @@ class PressResult:
     dstretch: np.ndarray | None = None
     displacement_mm: np.ndarray | None = field(default=None, repr=False)
     timings: dict = field(default_factory=dict)
+    counts: dict = field(default_factory=dict)
 
 
 @dataclass(frozen=True, eq=False)
@@ -91,7 +92,8 @@ class DensityEvaluation:
     def summary(self) -> dict:
         return {"v_rel": self.v_rel, "force_N": self.force_N, "stretch": self.stretch,
                 "presses": [{"v_rel": p.v_rel, "force_N": p.force_N, "stretch": p.stretch,
-                             "newton_steps": p.newton_steps, "warm_start": p.warm_start, "timings": p.timings}
+                             "newton_steps": p.newton_steps, "warm_start": p.warm_start, "timings": p.timings,
+                             "counts": p.counts}
                             for p in self.presses]}
 
 
@@ -198,8 +200,11 @@ class DensityModel:
         stretch, dS_du, dS_dw = stretch_pnorm(st.op, u, w_stretch, p_s)
         force = float(np.sum(ind.forces_N))
         t2 = time.perf_counter()
+        counts = {"newton_steps": ind.newton_steps, "load_steps": ind.load_steps,
+                  "factorizations": ind.solver["n_factorizations"],
+                  "krylov_iterations": ind.solver["krylov_iterations"]}
         out = dict(v_rel=v_rel, force_N=force, stretch=stretch, voltages=v, newton_steps=ind.newton_steps,
-                   warm_start=st.warm_start, displacement_mm=u)
+                   warm_start=st.warm_start, displacement_mm=u, counts=counts)
         if not gradient:
             return PressResult(**out, timings={"mechanics": t1 - t0, "electrics": t2 - t1, "total": t2 - t0})
         dmu, dkappa, dsigma = derivs
@@ -214,21 +219,20 @@ class DensityModel:
         g_u = np.zeros((self.mesh.n_nodes, 3))
         g_u[ref.node_ids] = dx_def
 
-        def through_moduli(lam):
-            s_mu, s_kappa = moduli_sensitivity(st.op, u, lam)
-            return self._to_cells(s_mu[lt] * dmu + s_kappa[lt] * dkappa)
-
+        k0, f0 = solver._n_krylov, solver._n_factor
         lam = solver.adjoint_solve(ind, g_u.ravel())
-        mechanics = -through_moduli(lam)
         # total force = sum over the held top nodes of -R_z: c = -e_z there
         c = np.zeros(3 * self.mesh.n_nodes)
         for nodes in st.contact_nodes:
             c[3 * nodes + 2] = -1.0
         y = solver.adjoint_solve(ind, np.zeros_like(c), values=c[st.dofs])
-        dforce = through_moduli(y)
         lam_s = solver.adjoint_solve(ind, dS_du)
-        dstretch = self._to_cells(dS_dw[lt] * np.abs(self.mesh.tet_volumes_mm3()[lt])) - through_moduli(lam_s)
+        s_mu, s_kappa = moduli_sensitivity(st.op, u, np.stack([lam, y, lam_s]))
+        mechanics, dforce, dstretch_m = (self._to_cells(s_mu[k, lt] * dmu + s_kappa[k, lt] * dkappa) for k in range(3))
+        mechanics = -mechanics
+        dstretch = self._to_cells(dS_dw[lt] * np.abs(self.mesh.tet_volumes_mm3()[lt])) - dstretch_m
         t3 = time.perf_counter()
+        counts.update(adjoint_krylov_iterations=solver._n_krylov - k0, adjoint_factorizations=solver._n_factor - f0)
         return PressResult(**out, dv_rel=electrics + mechanics, dv_rel_electrics=electrics,
                            dv_rel_mechanics=mechanics, dforce=dforce, dstretch=dstretch,
                            timings={"mechanics": t1 - t0, "electrics": t2 - t1, "gradient": t3 - t2,

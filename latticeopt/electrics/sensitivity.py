@@ -49,13 +49,13 @@ def weighted_sensitivities(model: ForwardModel, row_weights: np.ndarray) -> tupl
     W = p.measure.T @ (a[:, None] * p.drive_currents[p.row_drive])  # (n_e, n_e)
     scale = -model.current_A
     G = model.basis_gradients()  # (M, n_e, 3), V/m per A
-    GW = np.einsum("kld,lm->kmd", G, W)
-    S = np.einsum("kmd,kme->kde", GW, G)  # sum_lm W_lm grad b_l (x) grad b_m
+    GW = np.matmul(W.T, G)  # (M, n_e, 3): sum_l W_lm grad b_l
+    S = np.matmul(GW.transpose(0, 2, 1), G)  # sum_lm W_lm grad b_l (x) grad b_m
     trS = np.einsum("kdd->k", S)
     vol, grads, sigma = model._vol, model._grads, model.sigma
     d_sigma = scale * vol * trS
     Q = (sigma * vol)[:, None, None] * (trS[:, None, None] * np.eye(3) - S - S.transpose(0, 2, 1))
-    node_t = np.einsum("kij,kaj->kai", Q, grads)  # (M, 4, 3), per m
+    node_t = np.matmul(grads, Q.transpose(0, 2, 1))  # (M, 4, 3): Q g_a per node, per m
     mesh = model.mesh
     d_nodes = np.zeros((mesh.n_nodes, 3))
     for i in range(3):

@@ -99,7 +99,7 @@ class IndentationSolver(TangentSolves):
         self.linear = SymmetricSolver(self._matrix(self._ev0.data, isD), positive_definite=True,
                                       backend=settings.backend, factorize=False,
                                       precision=settings.factorization_precision)
-        self._latest = None  # the converged state whose phantom the factorization in ``linear`` belongs to
+        self._adjoint_factor = None  # the converged state whose own tangent ``linear`` holds (adjoint solves)
         self._shift = 0.0  # relative diagonal shift of the current factorization (0: the tangent itself)
         self.setup_seconds = time.perf_counter() - t0
         log.info("indentation solver: %d dofs, %d nonzeros, %s, set up in %.2f s", n, self.op.nnz,
@@ -112,7 +112,7 @@ class IndentationSolver(TangentSolves):
         other = copy.copy(self)
         other.op = self.op.with_moduli(mu_MPa, kappa_MPa)
         other._ev0 = other.op.evaluate(np.zeros((self.mesh.n_nodes, 3)))
-        other._latest = None
+        other._adjoint_factor = None
         return other
 
     def solve(self, touches, u0: np.ndarray | None = None) -> IndentationResult:
@@ -137,6 +137,7 @@ class IndentationSolver(TangentSolves):
             ev = self._evaluate(np.zeros_like(ref))
         cons = Constraints(ref, self.top_nodes, self.bottom_nodes, touches, s.indenter, s.in_plane)
         self._n_solves = self._n_factor = 0
+        self._adjoint_factor = None
         self._factor_isD = None  # Dirichlet set of the current factorization (none yet for this phantom)
         u = np.zeros((self.mesh.n_nodes, 3))
         d_max = max(t.depth_mm for t in touches)
@@ -202,10 +203,10 @@ class IndentationSolver(TangentSolves):
                  "volumetric": s.volumetric, "indenter": s.indenter, "in_plane": s.in_plane, "punch_edge": s.punch_edge,
                  "moved_reference_nodes": n_moved, "contact_nodes": [int(len(n)) for n in cons.contact_nodes()]}
         D = cons.dirichlet(1.0)[0]
-        self._latest = Converged(op=self._op, evaluation=ev if ev.data is not None else self._evaluate(u), dofs=D,
+        state = Converged(op=self._op, evaluation=ev if ev.data is not None else self._evaluate(u), dofs=D,
                                  contact_nodes=tuple(cons.contact_nodes()), warm_start=warm_ok)
         return IndentationResult(
-            touches=touches, state=self._latest, displacement_mm=u, deformed_mesh=self.mesh.with_nodes(ref + u),
+            touches=touches, state=state, displacement_mm=u, deformed_mesh=self.mesh.with_nodes(ref + u),
             forces_N=forces, newton_steps=self._n_solves, load_steps=len(history), step_halvings=halvings,
             max_hydrogel_stretch=smax, min_hydrogel_stretch=smin, min_det_F=float(J.min()),
             residual_norms=tuple(history), timings=clock, solver=stats)

@@ -38,27 +38,32 @@ def moduli_sensitivity(op: NeoHookeanOperator, u: np.ndarray, lam: np.ndarray) -
         The operator the press was solved with (its reference nodes).
     u : ndarray, shape (N, 3)
         Converged displacement (mm).
-    lam : ndarray, shape (3N,)
-        Adjoint vector (interleaved x, y, z per node).
+    lam : ndarray, shape (3N,) or (k, 3N)
+        Adjoint vector(s), interleaved x, y, z per node.
 
     Returns
     -------
-    d_mu, d_kappa : ndarray, shape (M,)
+    d_mu, d_kappa : ndarray, shape (M,) or (k, M)
         In mesh order; units N mm per MPa times those of ``lam``.
     """
     F, cof, J = op._kinematics(u)
     FinvT = cof / J[:, None, None]
-    lam_t = np.asarray(lam, dtype=float).reshape(-1, 3)[op.tets]  # (M, 4, 3)
-    L = np.einsum("mai,maj->mij", lam_t, op.grad)  # gradient of lam per tet
     I1 = np.einsum("mij,mij->m", F, F)
-    c = op.vol * J ** (-2.0 / 3.0)
-    d_mu = c * (np.einsum("mij,mij->m", F, L) - I1 / 3.0 * np.einsum("mij,mij->m", FinvT, L))
+    P_mu = (op.vol * J ** (-2.0 / 3.0))[:, None, None] * (F - (I1 / 3.0)[:, None, None] * FinvT)
     v_e = J * op.vol
     Jbar = np.bincount(op.patch, v_e, minlength=op.n_patches) / op.patch_vol
-    per_patch = np.bincount(op.patch, v_e * np.einsum("mij,mij->m", FinvT, L), minlength=op.n_patches)
-    per_patch *= 0.5 * (Jbar - 1.0 / Jbar)
-    d_kappa = per_patch[op.patch] * op.vol / op.patch_vol[op.patch]
-    return _to_mesh_order(op, d_mu), _to_mesh_order(op, d_kappa)
+    P_kappa = (0.5 * (Jbar - 1.0 / Jbar))[op.patch, None, None] * v_e[:, None, None] * FinvT
+    share = op.vol / op.patch_vol[op.patch]
+    lams = np.atleast_2d(np.asarray(lam, dtype=float))
+    d_mu, d_kappa = np.empty((len(lams), len(J))), np.empty((len(lams), len(J)))
+    for k, lk in enumerate(lams):
+        L = np.einsum("mai,maj->mij", lk.reshape(-1, 3)[op.tets], op.grad)  # gradient of lam per tet
+        d_mu[k, op.order] = np.einsum("mij,mij->m", P_mu, L)
+        per_patch = np.bincount(op.patch, np.einsum("mij,mij->m", P_kappa, L), minlength=op.n_patches)
+        d_kappa[k, op.order] = per_patch[op.patch] * share
+    if np.ndim(lam) == 1:
+        return d_mu[0], d_kappa[0]
+    return d_mu, d_kappa
 
 
 def stretch_pnorm(op: NeoHookeanOperator, u: np.ndarray, weights: np.ndarray, p: float

@@ -159,9 +159,8 @@ class TangentSolves:
 
         The adjoint of a function of the converged displacement (``rhs`` its gradient) or, with ``values`` on the
         constrained DOFs, the response of the free DOFs to a change of the prescribed ones. GMRES on the exact
-        converged tangent, preconditioned by the factorization the last Newton iterations used (when it belongs to
-        ``result``'s press), else by a fresh factorization of the converged tangent; stops at
-        ``|residual| <= rtol |rhs|``.
+        converged tangent, preconditioned by its own factorization (made at the first adjoint solve of the press
+        and kept for the next ones; a new press drops it); stops at ``|residual| <= rtol |rhs|``.
 
         Parameters
         ----------
@@ -186,18 +185,17 @@ class TangentSolves:
         matvec = self._symmetric_operator(self._constrained(ev.data, isD))
         atol = rtol * max(float(np.linalg.norm(b)), 1e-300)
         t = time.perf_counter()
-        ok = False
-        if self._latest is st and self._factor_isD is not None and np.array_equal(self._factor_isD, isD):
-            x, its, ok = gmres(matvec, b, lambda r: self.linear.solve(r).ravel(), atol, 40)
-            self._n_krylov += its
-        if not ok:  # no factorization of this press at hand, or too stale: factorize the converged tangent
+        if self._adjoint_factor is not st:
+            # one factorization of the converged tangent for all of this press's adjoints: GMRES then needs 1-3
+            # back-substitutions each, against about 20 through the last Newton factorization (a back-substitution
+            # costs a tenth of a factorization here: benchmarks/bench_gradient.py)
             self._factorize(ev.data, isD)
-            self._factor_isD, self._latest = isD, st
-            x, its, ok = gmres(matvec, b, lambda r: self.linear.solve(r).ravel(), atol, 40)
-            self._n_krylov += its
-            if not ok:
-                raise ConvergenceError(f"adjoint solve: GMRES on the converged tangent reached no relative residual "
-                                       f"{rtol:g} in 40 iterations")
+            self._factor_isD, self._adjoint_factor = isD, st
+        x, its, ok = gmres(matvec, b, lambda r: self.linear.solve(r).ravel(), atol, 40)
+        self._n_krylov += its
+        if not ok:
+            raise ConvergenceError(f"adjoint solve: GMRES on the converged tangent reached no relative residual "
+                                   f"{rtol:g} in 40 iterations")
         self._clock["adjoint"] = self._clock.get("adjoint", 0.0) + time.perf_counter() - t
         x[D] = jump
         return x
