@@ -124,6 +124,7 @@ def _import_everything() -> None:
 def _patch_stages(mp: pytest.MonkeyPatch) -> None:
     _import_everything()
     import latticeopt.coupled
+    import latticeopt.density
     import latticeopt.gestures
     import latticeopt.gestures.experiment
     import latticeopt.mechanics
@@ -145,6 +146,7 @@ def _patch_stages(mp: pytest.MonkeyPatch) -> None:
         (latticeopt.recon.classical, "LinearReconstructor"), (latticeopt.recon.classical, "GaussNewton"),
         (latticeopt.recon.dnn, "DNNReconstructor"), (latticeopt.recon.dataset, "generate_dataset"),
         (latticeopt.gestures, "generate_gestures"), (latticeopt.gestures.experiment, "classify_sequences"),
+        (latticeopt.density, "DensityModel"), (latticeopt.density, "density_of_design"),
     ]:
         mp.setattr(module, name, _stage)
     mp.setattr(latticeopt.recon.dataset.ReconDataset, "load", classmethod(_stage))
