@@ -41,3 +41,11 @@ def test_export_and_reconstruct(tmp_path):
 @pytest.mark.parametrize("script", sorted(p.name for p in EXAMPLES.glob("*.py")))
 def test_example_documents_its_usage(script):
     assert f"python examples/{script}" in (EXAMPLES / script).read_text()
+
+
+def test_density_gradient_map(tmp_path):
+    out = _run("density_gradient_map.py", "--size", "8", "--cells", "10", "--per-count", "1", "-o", "map.png",
+               cwd=tmp_path)
+    assert "over 3 presses" in out and (tmp_path / "map.png").stat().st_size > 10_000
+    with __import__("numpy").load(tmp_path / "map.npz") as z:
+        assert z["dv_rel_ddensity"].shape == (10, 10)

@@ -4,8 +4,15 @@
 and the cell map), :mod:`.model` (:class:`DensityModel`: V_rel, force, stretch and their gradients).
 """
 
-from .field import InterpolationLaw, check_density, density_of_design, load_density, save_density
+from .field import (
+    InterpolationLaw,
+    check_density,
+    density_of_design,
+    load_density,
+    parameter_gradient,
+    save_density,
+)
 from .model import DensityEvaluation, DensityModel, PressResult
 
 __all__ = ["DensityEvaluation", "DensityModel", "InterpolationLaw", "PressResult", "check_density",
-           "density_of_design", "load_density", "save_density"]
+           "density_of_design", "load_density", "parameter_gradient", "save_density"]

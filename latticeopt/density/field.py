@@ -159,3 +159,33 @@ def density_of_design(design, n: int, smoothing_mm: float = 0.0) -> np.ndarray:
     inside = shapely.contains_xy(geom, X.ravel(), Y.ravel())
     s = np.where(inside, dist, -dist)
     return (0.5 * (1.0 + np.tanh(s / smoothing_mm))).reshape(n, n)
+
+
+def parameter_gradient(design, name: str, gradient: np.ndarray, smoothing_mm: float, step: float = 1e-3) -> float:
+    """Chain rule from a density gradient to a layout parameter: ``sum(gradient * d rho / d theta)``.
+
+    ``rho`` is :func:`density_of_design` with ``smoothing_mm > 0`` (smooth in the parameters); its derivative
+    in the design field ``name`` (``width_mm``, ``pitch_mm``, ...) is a central difference of the projection
+    alone (geometry, no physics; truncation ``O(step^2)``).
+
+    Parameters
+    ----------
+    design
+        The layout (a :class:`~latticeopt.design.LatticeDesign`).
+    name
+        A numeric field of the design.
+    gradient : ndarray, shape (n, n)
+        ``d f / d rho`` of some function ``f`` of the density (e.g. ``dv_rel_ddensity``).
+    smoothing_mm
+        The projection's smoothing length, > 0.
+    step
+        Difference step in the parameter's unit.
+    """
+    import dataclasses
+
+    g = np.asarray(gradient, dtype=float)
+    smoothing_mm = v.real("smoothing_mm", smoothing_mm, lo=0, lo_open=True)
+    theta = float(getattr(design, name))
+    plus, minus = (density_of_design(dataclasses.replace(design, **{name: theta + s * step}), g.shape[0], smoothing_mm)
+                   for s in (1, -1))
+    return float(np.sum(g * (plus - minus)) / (2 * step))
