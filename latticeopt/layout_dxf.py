@@ -18,7 +18,7 @@ from pathlib import Path
 from .errors import ParameterError
 from .layout import polygons_from_geometry
 
-__all__ = ["FLATTEN_TOL_MM", "read_dxf"]
+__all__ = ["FLATTEN_TOL_MM", "read_dxf", "write_dxf"]
 
 #: Largest distance (mm) between a curve and the polygon that replaces it.
 FLATTEN_TOL_MM = 0.01
@@ -93,3 +93,22 @@ def read_dxf(path: str | Path, name: str = "--layout") -> tuple:
 def _closed(points) -> bool:
     (x0, y0), (x1, y1) = points[0], points[-1]
     return abs(x0 - x1) <= 1e-9 and abs(y0 - y1) <= 1e-9
+
+
+def write_dxf(footprint, path: str | Path) -> Path:
+    """Write a footprint's outlines as closed LWPOLYLINEs in millimetres (``$INSUNITS`` 4), one per ring (holes
+    too: :func:`read_dxf`'s even-odd rule reads them back as the same layout). Needs ``ezdxf``."""
+    try:
+        import ezdxf
+    except ImportError:
+        raise ParameterError("--dxf", 'the ezdxf package (pip install -e ".[dxf]")', "not installed") from None
+    import shapely
+
+    doc = ezdxf.new()
+    doc.header["$INSUNITS"] = 4
+    msp = doc.modelspace()
+    for poly in shapely.get_parts(footprint):
+        for ring in (poly.exterior, *poly.interiors):
+            msp.add_lwpolyline([(float(x), float(y)) for x, y in list(ring.coords)[:-1]], close=True)
+    doc.saveas(str(path))
+    return Path(path)
