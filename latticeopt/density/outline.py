@@ -7,7 +7,7 @@ smooth and simplify, then GeoJSON and DXF that ``--layout`` reads and the exact 
 >>> design = LatticeDesign(width_mm=4, thickness_mm=3)
 >>> geom, report = density_outline(design, density_of_design(design, 200))   # 0.5 mm cells: exact
 >>> report["pieces_dropped"], round(report["hydrogel_fraction"], 3)
-(0, 0.48)
+(0, 0.482)
 """
 
 from __future__ import annotations
