@@ -55,7 +55,9 @@ def _hydrogel_solid(design: LatticeDesign):
     z0, z1 = design.layer_z_mm
     # Shells counter-clockwise, holes clockwise: what manifold3d's Positive fill rule reads as solid and void.
     gel = shapely.orient_polygons(design.footprint(), exterior_cw=False)
-    rings = [np.ascontiguousarray(np.asarray(r.coords)[:-1, :2], dtype=np.float64) for r in shapely.get_rings(gel)]
+    # get_rings reads a Polygon's rings only: a layout of several pieces (a MultiPolygon) is taken part by part
+    rings = [np.ascontiguousarray(np.asarray(r.coords)[:-1, :2], dtype=np.float64)
+             for part in shapely.get_parts(gel) for r in shapely.get_rings(part)]
     section = m3.CrossSection(rings, m3.FillRule.Positive)
     return m3.Manifold.extrude(section, z1 - z0).translate([0.0, 0.0, z0])
 

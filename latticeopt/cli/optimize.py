@@ -62,6 +62,11 @@ def run_optimize_command(args: argparse.Namespace) -> int:
     from ..optimize.categories import write_summary
 
     check_study_file(args.study)
+    from ..optimize.load import read_study_table
+
+    raw, keys = read_study_table(args.study, study_overrides(args) + physics_overrides(args))
+    if raw.get("kind") == "freeform":
+        return _run_freeform(args, raw, keys)
     runs = load_categories(args.study, study_overrides(args) + physics_overrides(args))
     check_parallel_args(args)
     for run in runs:
@@ -106,4 +111,27 @@ def run_optimize_command(args: argparse.Namespace) -> int:
             print(line)
         if len(all_failed) == len(runs):
             raise AllFailedError(f"every phantom evaluation failed in every category ({', '.join(all_failed)})")
+    return 0
+
+
+def _run_freeform(args: argparse.Namespace, raw: dict, keys: list) -> int:
+    """A ``kind = "freeform"`` study (:mod:`latticeopt.optimize.freeform`)."""
+    from ..optimize.freeform import run_freeform
+    from ..optimize.freeform_study import freeform_from_dict
+    from ._common import check_output_path
+
+    study = freeform_from_dict(raw, source=str(args.study), overridden=keys)
+    out = check_output_path("--out", args.out or study.out_dir, kind="dir")
+    cfg = study.config
+    if args.dry_run:
+        print(f"{study.name}: maximize mean V_rel over {len(study.phantoms)} phantoms; {cfg.cells} x {cfg.cells} "
+              f"cells, symmetry {cfg.symmetry}, minimum feature {cfg.min_feature_mm:g} mm, gel fraction "
+              f"{cfg.min_hydrogel_fraction:g}..{cfg.max_hydrogel_fraction:g}, {cfg.algorithm}, beta "
+              f"{list(cfg.betas)} x {cfg.iterations_per_beta} iterations; mesh {study.mesh.size_mm:g} mm; out {out}")
+        return 0
+    res = run_freeform(study.design, list(study.phantoms), study.mesh, study.physics, cfg, out,
+                       progress=None if args.quiet else print)
+    print(f"mean V_rel {res.v_rel:.5f}, gel fraction {res.hydrogel_fraction:.3f}, {res.evaluations} evaluations; "
+          f"wrote " + ", ".join(f"{k} {v}" for k, v in res.files.items() if k != "stl")
+          + (f", STL solids in {out / 'stl'}" if "stl" in res.files else ""))
     return 0

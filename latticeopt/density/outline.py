@@ -25,8 +25,8 @@ def density_outline(design, density: np.ndarray, threshold: float = 0.5, smooth_
 
     Cells with ``density >= threshold`` are gel; pieces of gel that touch no electrode are dropped (their
     potential would float: the conforming model rejects them, and they sense nothing); ``smooth_mm > 0`` rounds
-    the staircase of cells by a morphological closing then opening of that radius; ``simplify_mm`` removes
-    vertices closer than that to the outline.
+    the staircase of cells by a morphological closing then opening of that radius; ``simplify_mm`` first removes
+    vertices closer than that to the outline (the staircase's collinear ones).
 
     Returns
     -------
@@ -43,11 +43,13 @@ def density_outline(design, density: np.ndarray, threshold: float = 0.5, smooth_
     h = L / n
     square = shapely.box(0.0, 0.0, L, L)
     geom = shapely.union_all(shapely.box(ix * h, iy * h, (ix + 1) * h, (iy + 1) * h)) if len(ix) else shapely.Polygon()
-    if smooth_mm > 0 and not geom.is_empty:
-        geom = geom.buffer(smooth_mm, join_style="round").buffer(-2 * smooth_mm).buffer(smooth_mm)
-        geom = geom.intersection(square)
-    if simplify_mm > 0 and not geom.is_empty:
+    if simplify_mm > 0 and not geom.is_empty:  # before the smoothing: afterwards it would cut the rim's corners
         geom = geom.simplify(simplify_mm)
+    if smooth_mm > 0 and not geom.is_empty:
+        # two segments per quarter circle: rounded enough for a mould, and no tiny edges for the mesher to resolve
+        geom = geom.buffer(smooth_mm, quad_segs=2).buffer(-2 * smooth_mm, quad_segs=2).buffer(smooth_mm, quad_segs=2)
+        # round-off leaves the rim edges a hair inside the square, off the electrodes: snap to a 1 nm grid
+        geom = shapely.set_precision(geom.intersection(square), 1e-6)
     electrodes = design.electrodes()
     pieces = list(shapely.get_parts(geom)) if not geom.is_empty else []
     kept = [p for p in pieces if np.any(electrode_contact_mm(p, electrodes) > 1e-9)]

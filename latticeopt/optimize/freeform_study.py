@@ -1,0 +1,102 @@
+"""Reading a ``kind = "freeform"`` study: ``[design]`` (the sensor), ``[phantoms]``, ``[mesh]`` (``size_mm``,
+``layer_cells``), ``[physics]`` and ``[freeform]`` (:class:`~latticeopt.optimize.freeform.FreeformConfig`).
+
+Errors name the file and dotted key (or ``--set key``), what was expected and what arrived; everything is checked
+before any meshing.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..errors import ParameterError
+from .freeform import FreeformConfig
+
+_TOP = ("name", "kind", "description", "out", "jobs", "design", "phantoms", "mesh", "physics", "freeform")
+
+
+@dataclass(frozen=True, eq=False)
+class FreeformStudy:
+    """A validated free-form study."""
+
+    name: str
+    description: str
+    out_dir: Path
+    design: object
+    phantoms: tuple
+    mesh: object
+    physics: object
+    config: FreeformConfig
+
+
+def is_freeform(raw: Mapping) -> bool:
+    return raw.get("kind") == "freeform"
+
+
+def freeform_from_dict(raw: Mapping, source: str, overridden: Sequence[str] = ()) -> FreeformStudy:
+    from ..coupled import PhysicsSettings
+    from ..design import design_from_table
+    from ..mesh import MeshSettings
+    from ..study.phantoms import random_phantoms
+    from ..touches import validate_touches
+
+    def name(key: str) -> str:
+        return f"--set {key}" if any(key == k or key.startswith(k + ".") for k in overridden) else f"{source}: {key}"
+
+    def rename(exc: ParameterError, table: str) -> ParameterError:
+        key = exc.name if exc.name.startswith(table + ".") else f"{table}.{exc.name}"
+        return ParameterError(name(key), exc.expected, exc.got)
+
+    unknown = sorted(set(raw) - set(_TOP))
+    if unknown:
+        raise ParameterError(name(unknown[0]), "a key among " + ", ".join(_TOP), unknown[0])
+    tables = {}
+    for t in ("design", "phantoms", "mesh", "physics", "freeform"):
+        tables[t] = raw.get(t, {})
+        if not isinstance(tables[t], Mapping):
+            raise ParameterError(name(t), "a table", tables[t])
+    try:
+        design = design_from_table(dict(tables["design"]), str(Path(source).parent))
+    except ParameterError as exc:
+        raise rename(exc, "design") from None
+    ph = dict(tables["phantoms"])
+    bad = sorted(set(ph) - {"seed", "counts", "depth_mm", "radius_mm"})
+    if bad:
+        raise ParameterError(name(f"phantoms.{bad[0]}"), "a key among seed, counts, depth_mm, radius_mm", bad[0])
+    try:
+        counts = {int(k): int(c) for k, c in dict(ph.get("counts", {1: 10, 2: 10, 3: 10})).items()}
+        phantoms = random_phantoms(design.size_mm, counts, int(ph.get("seed", 2025)),
+                                   depth_range_mm=tuple(ph.get("depth_mm", (1.0, 5.0))),
+                                   radius_range_mm=tuple(ph.get("radius_mm", (6.25, 8.75))))
+        phantoms = tuple(list(validate_touches(design, p.touches)) for p in phantoms)
+    except (ParameterError, TypeError, ValueError) as exc:
+        raise ParameterError(name("phantoms"), "seed (integer), counts {touches = number}, depth_mm and "
+                             "radius_mm [low, high]", str(exc)) from None
+    if not phantoms:
+        raise ParameterError(name("phantoms.counts"), "at least one phantom", ph.get("counts"))
+    mesh = dict(tables["mesh"])
+    bad = sorted(set(mesh) - {"size_mm", "layer_cells"})
+    if bad:
+        raise ParameterError(name(f"mesh.{bad[0]}"), "size_mm or layer_cells (the density mesh)", bad[0])
+    try:
+        mesh_settings = MeshSettings(**mesh)
+    except ParameterError as exc:
+        raise rename(exc, "mesh") from None
+    try:
+        physics = PhysicsSettings.from_dict(dict(tables["physics"]))
+        if physics.conductivity_law != "geometry":
+            raise ParameterError("conductivity_law", "'geometry' for density layouts", physics.conductivity_law)
+    except ParameterError as exc:
+        raise rename(exc, "physics") from None
+    try:
+        config = FreeformConfig.from_dict(dict(tables["freeform"]))
+    except ParameterError as exc:
+        raise rename(exc, "freeform") from None
+    except TypeError as exc:
+        raise ParameterError(name("freeform"), "keys of the right types", str(exc)) from None
+    stem = Path(source).stem
+    return FreeformStudy(name=str(raw.get("name", stem)), description=str(raw.get("description", "")),
+                         out_dir=Path(raw.get("out", f"runs/{stem}")), design=design, phantoms=phantoms,
+                         mesh=mesh_settings, physics=physics, config=config)

@@ -1,0 +1,118 @@
+"""Free-form layouts: the parametrization's chain rule and symmetry, outlines that can be cast, and a coarse
+optimization run from the command line that resumes after a crash and writes its layout."""
+
+import json
+
+import numpy as np
+import pytest
+
+from latticeopt import LatticeDesign
+from latticeopt.cli import main
+from latticeopt.density.outline import density_outline
+from latticeopt.density.projection import FreeForm
+from latticeopt.layout import read_geojson
+
+DESIGN = LatticeDesign(thickness_mm=3.0)
+
+
+@pytest.mark.parametrize("symmetry", ["none", "mirror", "d4"])
+def test_parametrization_chain_rule_symmetry_and_pads(symmetry):
+    ff = FreeForm(DESIGN, 16, symmetry, min_feature_mm=15.0, pad_mm=4.0)
+    rng = np.random.default_rng(2)
+    x, g, d = rng.random(ff.n_variables), rng.normal(size=(16, 16)), rng.normal(size=ff.n_variables)
+    h = 1e-6
+    fd = (np.sum(g * ff.density(x + h * d, 4.0)) - np.sum(g * ff.density(x - h * d, 4.0))) / (2 * h)
+    assert abs(ff.gradient(x, 4.0, g) @ d - fd) <= 1e-7 * abs(fd)
+    rho = ff.density(x, 4.0)
+    if symmetry != "none":
+        assert np.allclose(rho, rho[::-1]) and np.allclose(rho, rho[:, ::-1])
+    assert np.allclose(rho, rho.T) == (symmetry == "d4")
+    # a pad at every electrode: the cell under each electrode's centre is gel
+    for cx, cy, *_ in DESIGN.electrodes():
+        i, j = min(int(cy / 100 * 16), 15), min(int(cx / 100 * 16), 15)
+        assert rho[i, j] == 1.0
+    assert {"none": 256, "mirror": 64, "d4": 36}[symmetry] == ff.n_variables
+
+
+def test_outline_drops_floating_gel_and_round_trips(tmp_path):
+    d = np.zeros((10, 10))
+    d[1, :] = 1.0       # a channel along y = 10..20 mm: reaches the electrodes at y = 12.5 on both sides
+    d[5, 4:6] = 1.0     # an island in the middle: touches no electrode
+    geom, report = density_outline(DESIGN, d, smooth_mm=1.0)
+    assert report["pieces"] == 1 and report["pieces_dropped"] == 1 and report["dropped_area_mm2"] > 150
+    from latticeopt.layout import write_geojson
+
+    write_geojson(geom, tmp_path / "l.geojson")
+    back = read_geojson(tmp_path / "l.geojson")
+    assert len(back) == 1
+    pytest.importorskip("ezdxf")
+    from latticeopt.layout_dxf import read_dxf, write_dxf
+
+    write_dxf(geom, tmp_path / "l.dxf")
+    area = sum(abs(np.sum(p[0][:, 0] * np.roll(p[0][:, 1], -1) - np.roll(p[0][:, 0], -1) * p[0][:, 1])) / 2
+               for p in [tuple(np.asarray(r) for r in poly) for poly in read_dxf(tmp_path / "l.dxf")])
+    assert abs(area - geom.area) < 1e-6 * geom.area
+
+
+SMALL = ["--set", "mesh.size_mm=8", "--set", "freeform.cells=8", "--set", "phantoms.counts={1=1}",
+         "--set", "freeform.betas=[1, 4]", "--set", "freeform.min_feature_mm=13"]
+
+
+class Crash(Exception):
+    pass
+
+
+def test_freeform_run_resumes_after_a_crash_and_writes_a_castable_layout(tmp_path, monkeypatch, capsys):
+    out = tmp_path / "run"
+    argv = ["optimize", "studies/optimize_freeform.toml", "--out", str(out), *SMALL,
+            "--set", "freeform.iterations_per_beta=2"]
+    import latticeopt.optimize.freeform as freeform
+
+    calls = {"n": 0}
+    original = freeform.json.dumps
+
+    def crash_on_third_record(obj, *a, **k):  # the third evaluation's history line: a kill mid-run
+        if isinstance(obj, dict) and "iteration" in obj:
+            calls["n"] += 1
+            if calls["n"] == 3:
+                raise Crash
+        return original(obj, *a, **k)
+
+    monkeypatch.chdir(__import__("pathlib").Path(__file__).resolve().parents[1])
+    monkeypatch.setattr(freeform.json, "dumps", crash_on_third_record)
+    with pytest.raises(Crash):
+        main(argv)
+    monkeypatch.setattr(freeform.json, "dumps", original)
+    state = json.loads((out / "state.json").read_text())
+    assert (state["stage"], state["iterations"]) == (1, 0)  # stage 1 finished, nothing of stage 2 kept
+    assert len((out / "history.jsonl").read_text().splitlines()) == 2
+    capsys.readouterr()
+    assert main(argv) == 0
+    text = capsys.readouterr().out
+    assert "resuming" in text and "stage 2 of 2" in text
+    history = [json.loads(x) for x in (out / "history.jsonl").read_text().splitlines()]
+    assert [h["stage"] for h in history] == [0, 0, 1, 1]  # stage 1 was not run again
+    for name in ("layout.geojson", "density.npz", "convergence.png", "layout_stage1.png", "layout_stage2.png",
+                 "report.txt", "stl/hydrogel.stl"):
+        assert (out / name).is_file(), name
+    assert main(["mesh", "--layout", str(out / "layout.geojson"), "--thickness", "3", "--size", "8", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["region_volumes_mm3"]["hydrogel"] > 0
+
+
+@pytest.mark.parametrize("override, key", [
+    ("freeform.symmetry='c2'", "freeform.symmetry"),
+    ("freeform.cells=2", "freeform.cells"),
+    ("freeform.max_hydrogel_fraction=0", "freeform.max_hydrogel_fraction"),
+    ("freeform.betas=[4, 1]", "freeform.betas"),
+    ("freeform.bogus=1", "freeform.bogus"),
+    ("mesh.mesher='tetwild'", "mesh.mesher"),
+    ("physics.conductivity_law='linear'", "physics.conductivity_law"),
+])
+def test_bad_freeform_keys_are_one_line_before_any_work(tmp_path, override, key, capsys, monkeypatch):
+    monkeypatch.chdir(__import__("pathlib").Path(__file__).resolve().parents[1])
+    import latticeopt.density
+
+    monkeypatch.setattr(latticeopt.density, "DensityModel", None)  # any model built would fail loudly
+    status = main(["optimize", "studies/optimize_freeform.toml", "--out", str(tmp_path), "--set", override])
+    err = capsys.readouterr().err
+    assert status == 2 and len(err.splitlines()) == 1 and key in err
