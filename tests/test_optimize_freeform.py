@@ -116,3 +116,47 @@ def test_bad_freeform_keys_are_one_line_before_any_work(tmp_path, override, key,
     status = main(["optimize", "studies/optimize_freeform.toml", "--out", str(tmp_path), "--set", override])
     err = capsys.readouterr().err
     assert status == 2 and len(err.splitlines()) == 1 and key in err
+
+
+def test_graded_widths_gradient_through_the_model():
+    """d mean V_rel / d (line widths) by the chain rule through the graded density, against central differences
+    of the whole model over the widths."""
+    from latticeopt import MeshSettings
+    from latticeopt.coupled import PhysicsSettings
+    from latticeopt.density import DensityModel
+    from latticeopt.density.graded import GradedSquare
+    from latticeopt.touches import Touch
+
+    param = GradedSquare(LatticeDesign(thickness_mm=3.0), 10, "mirror", smoothing_mm=1.0, samples=2)
+    model = DensityModel(DESIGN, 10, MeshSettings(size_mm=8.0), PhysicsSettings(mechanics_rtol=1e-10))
+    press = [[Touch(45.0, 55.0, 12.0, 2.5)]]
+    x = np.linspace(3.0, 5.0, param.n_variables)
+    ev = model.evaluate(param.density(x), press)
+    g = param.gradient(x, None, ev.dv_rel_ddensity)
+    d = np.cos(np.arange(param.n_variables))
+    h = 1e-4
+    fd = (model.evaluate(param.density(x + h * d), press, gradient=False).v_rel
+          - model.evaluate(param.density(x - h * d), press, gradient=False).v_rel) / (2 * h)
+    assert abs(g @ d - fd) <= 1e-4 * abs(fd)
+    # the exact outline is the union of the channel rectangles
+    widths = param.widths(x)
+    assert param.polygons(x).area == pytest.approx(
+        100 * widths.sum() - sum(a * b for a in widths[:7] for b in widths[7:]), rel=1e-9)
+
+
+def test_graded_study_writes_an_exact_layout(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(__import__("pathlib").Path(__file__).resolve().parents[1])
+    out = tmp_path / "graded"
+    assert main(["optimize", "studies/optimize_graded.toml", "--out", str(out), "--set", "mesh.size_mm=8",
+                 "--set", "graded.cells=8", "--set", "graded.iterations=2", "--set", "phantoms.counts={1=1}",
+                 "--quiet"]) == 0
+    widths = json.loads((out / "widths.json").read_text())
+    assert len(widths["widths_along_x_mm"]) == 7 and widths["widths_along_x_mm"] == widths["widths_along_y_mm"]
+    assert all(1.0 <= w <= 10.5 for w in widths["variables_mm"])
+    capsys.readouterr()
+    assert main(["mesh", "--layout", str(out / "layout.geojson"), "--mesher", "grid", "--thickness", "3",
+                 "--size", "8", "--json"]) == 0  # axis-aligned: the exact grid mesher takes it
+    assert (out / "stl" / "hydrogel.stl").is_file()
+    bad = main(["optimize", "studies/optimize_graded.toml", "--out", str(tmp_path / "b"), "--set",
+                "graded.min_island_mm=12"])
+    assert bad == 2 and "graded.min_island_mm" in capsys.readouterr().err

@@ -65,8 +65,8 @@ def run_optimize_command(args: argparse.Namespace) -> int:
     from ..optimize.load import read_study_table
 
     raw, keys = read_study_table(args.study, study_overrides(args) + physics_overrides(args))
-    if raw.get("kind") == "freeform":
-        return _run_freeform(args, raw, keys)
+    if raw.get("kind") in ("freeform", "graded"):
+        return _run_density_study(args, raw, keys)
     runs = load_categories(args.study, study_overrides(args) + physics_overrides(args))
     check_parallel_args(args)
     for run in runs:
@@ -114,23 +114,28 @@ def run_optimize_command(args: argparse.Namespace) -> int:
     return 0
 
 
-def _run_freeform(args: argparse.Namespace, raw: dict, keys: list) -> int:
-    """A ``kind = "freeform"`` study (:mod:`latticeopt.optimize.freeform`)."""
+def _run_density_study(args: argparse.Namespace, raw: dict, keys: list) -> int:
+    """A ``kind = "freeform"`` or ``"graded"`` study (:mod:`latticeopt.optimize.freeform`, :mod:`.graded`)."""
     from ..optimize.freeform import run_freeform
     from ..optimize.freeform_study import freeform_from_dict
+    from ..optimize.graded import run_graded
     from ._common import check_output_path
 
     study = freeform_from_dict(raw, source=str(args.study), overridden=keys)
     out = check_output_path("--out", args.out or study.out_dir, kind="dir")
     cfg = study.config
     if args.dry_run:
-        print(f"{study.name}: maximize mean V_rel over {len(study.phantoms)} phantoms; {cfg.cells} x {cfg.cells} "
-              f"cells, symmetry {cfg.symmetry}, minimum feature {cfg.min_feature_mm:g} mm, gel fraction "
-              f"{cfg.min_hydrogel_fraction:g}..{cfg.max_hydrogel_fraction:g}, {cfg.algorithm}, beta "
-              f"{list(cfg.betas)} x {cfg.iterations_per_beta} iterations; mesh {study.mesh.size_mm:g} mm; out {out}")
+        layout = (f"{cfg.cells} x {cfg.cells} cells, minimum feature {cfg.min_feature_mm:g} mm, beta "
+                  f"{list(cfg.betas)} x {cfg.iterations_per_beta} iterations" if study.kind == "freeform" else
+                  f"a width per line of pitch {study.design.pitch_mm:g} mm ({cfg.min_width_mm:g} mm <= w, islands >= "
+                  f"{cfg.min_island_mm:g} mm), {cfg.iterations} iterations")
+        print(f"{study.name} ({study.kind}): maximize mean V_rel over {len(study.phantoms)} phantoms; {layout}; "
+              f"symmetry {cfg.symmetry}; gel fraction {cfg.min_hydrogel_fraction:g}..{cfg.max_hydrogel_fraction:g}; "
+              f"{cfg.algorithm}; mesh {study.mesh.size_mm:g} mm; out {out}")
         return 0
-    res = run_freeform(study.design, list(study.phantoms), study.mesh, study.physics, cfg, out,
-                       progress=None if args.quiet else print)
+    run = run_freeform if study.kind == "freeform" else run_graded
+    res = run(study.design, list(study.phantoms), study.mesh, study.physics, cfg, out,
+              progress=None if args.quiet else print)
     print(f"mean V_rel {res.v_rel:.5f}, gel fraction {res.hydrogel_fraction:.3f}, {res.evaluations} evaluations; "
           f"wrote " + ", ".join(f"{k} {v}" for k, v in res.files.items() if k != "stl")
           + (f", STL solids in {out / 'stl'}" if "stl" in res.files else ""))

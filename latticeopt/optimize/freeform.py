@@ -99,6 +99,12 @@ class FreeformResult:
     files: dict = field(default_factory=dict)
 
 
+def shapely_parts(geom) -> list:
+    import shapely
+
+    return [] if geom.is_empty else list(shapely.get_parts(geom))
+
+
 def _write_json(path: Path, obj) -> None:
     write_atomic(path, lambda fh: fh.write(json.dumps(obj).encode()))
 
@@ -116,23 +122,39 @@ def run_freeform(design, phantoms: list, mesh_settings, physics, cfg: FreeformCo
     mesh_settings, physics
         :class:`~latticeopt.mesh.MeshSettings` and :class:`~latticeopt.coupled.PhysicsSettings`.
     """
+    from ..density.projection import FreeForm
+
+    ff = FreeForm(design, cfg.cells, cfg.symmetry, cfg.min_feature_mm, cfg.pad_mm)
+    n = ff.n_variables
+    x, history, rho, ev = optimize_density(design, phantoms, mesh_settings, physics, cfg, ff, np.full(n, cfg.start),
+                                           np.zeros(n), np.ones(n), out_dir, progress)
+    files = write_outputs(design, rho, cfg, Path(out_dir), history, extra_lines=(
+        f"free-form layout: minimum feature {cfg.min_feature_mm:g} mm, pads {cfg.pad_mm:g} mm",))
+    return FreeformResult(density=rho, variables=x, v_rel=ev.v_rel, hydrogel_fraction=float(rho.mean()),
+                          evaluations=len(history), history=history, files=files)
+
+
+def optimize_density(design, phantoms: list, mesh_settings, physics, cfg, param, x0: np.ndarray, lower: np.ndarray,
+                     upper: np.ndarray, out_dir, progress: Callable[[str], None] | None = print):
+    """The resumable MMA loop over a density parametrization ``param`` (``n_variables``, ``density(x, beta)``,
+    ``gradient(x, beta, d_rho)``): stages ``cfg.betas`` of ``cfg.iterations_per_beta`` iterations, the hydrogel
+    fraction bounds and stretch cap of ``cfg`` as constraints. Returns ``(x, history, density, evaluation)``."""
     import nlopt
 
     from ..density import DensityModel
-    from ..density.projection import FreeForm
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    ff = FreeForm(design, cfg.cells, cfg.symmetry, cfg.min_feature_mm, cfg.pad_mm)
+    ff = param
     identity = {"config": asdict(cfg), "design": design.as_dict(), "mesh": mesh_settings.as_dict(),
                 "physics": physics.as_dict(), "phantoms": [[t.as_dict() for t in p] for p in phantoms]}
     state_path, hist_path = out / "state.json", out / "history.jsonl"
-    x, stage, done = np.full(ff.n_variables, cfg.start), 0, 0
+    x, stage, done = np.asarray(x0, dtype=float), 0, 0
     history = []
     if state_path.exists():
         state = json.loads(state_path.read_text())
         if state.get("identity") != json.loads(json.dumps(identity)):
-            raise ParameterError("out", "an output folder of this same free-form study (its settings differ from "
+            raise ParameterError("out", "an output folder of this same study (its settings differ from "
                                  "the stored state.json; choose another --out)", str(out))
         x, stage, done = np.asarray(state["x"], dtype=float), int(state["stage"]), int(state["iterations"])
         history = [json.loads(line) for line in hist_path.read_text().splitlines()] if hist_path.exists() else []
@@ -143,7 +165,7 @@ def run_freeform(design, phantoms: list, mesh_settings, physics, cfg: FreeformCo
     t_setup = time.perf_counter()
     model = DensityModel(design, cfg.cells, mesh_settings, physics)
     if progress:
-        progress(f"free-form: {ff.n_variables} variables ({cfg.cells} x {cfg.cells} cells, {cfg.symmetry}), "
+        progress(f"{type(ff).__name__}: {ff.n_variables} variables ({cfg.cells} x {cfg.cells} cells, {cfg.symmetry}), "
                  f"{len(phantoms)} phantoms, mesh {model.mesh.n_nodes} nodes (set-up "
                  f"{time.perf_counter() - t_setup:.1f} s)")
     warm: list | None = None
@@ -168,8 +190,8 @@ def run_freeform(design, phantoms: list, mesh_settings, physics, cfg: FreeformCo
         if remaining <= 0:
             continue
         opt = nlopt.opt(getattr(nlopt, cfg.algorithm), ff.n_variables)
-        opt.set_lower_bounds(np.zeros(ff.n_variables))
-        opt.set_upper_bounds(np.ones(ff.n_variables))
+        opt.set_lower_bounds(np.asarray(lower, dtype=float))
+        opt.set_upper_bounds(np.asarray(upper, dtype=float))
         count = {"n": done if k == stage else 0}
 
         def objective(xv, grad, beta=beta, k=k, count=count):
@@ -226,9 +248,7 @@ def run_freeform(design, phantoms: list, mesh_settings, physics, cfg: FreeformCo
                     f"stage {k + 1}: beta {beta:g}, {cfg.cells}x{cfg.cells} cells, {len(phantoms)} phantoms")
     beta = cfg.betas[-1]
     rho, ev, _ = evaluate(np.asarray(x), beta)
-    files = write_outputs(design, rho, cfg, out, history)
-    return FreeformResult(density=rho, variables=np.asarray(x), v_rel=ev.v_rel, hydrogel_fraction=float(rho.mean()),
-                          evaluations=len(history), history=history, files=files)
+    return np.asarray(x), history, rho, ev
 
 
 def _plot_stage(rho: np.ndarray, path: Path, design, title: str) -> None:
@@ -247,8 +267,12 @@ def _plot_stage(rho: np.ndarray, path: Path, design, title: str) -> None:
     plt.close(fig)
 
 
-def write_outputs(design, rho: np.ndarray, cfg: FreeformConfig, out: Path, history: list) -> dict:
-    """Density, outline (GeoJSON; DXF when ezdxf is installed), region solids (STL), convergence plot, report."""
+def write_outputs(design, rho: np.ndarray, cfg, out: Path, history: list, geometry=None,
+                  extra_lines: tuple = ()) -> dict:
+    """Density, outline (GeoJSON; DXF when ezdxf is installed), region solids (STL), convergence plot, report.
+
+    The outline is ``geometry`` when given (an exact layout, e.g. a graded lattice's rectangles), else the
+    density's thresholded and cleaned outline (:func:`~latticeopt.density.outline.density_outline`)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -260,7 +284,13 @@ def write_outputs(design, rho: np.ndarray, cfg: FreeformConfig, out: Path, histo
     from ..layout import polygons_from_geometry, write_geojson
 
     files = {"density": str(save_density(out / "density.npz", rho))}
-    geom, report = density_outline(design, rho, cfg.threshold, cfg.smooth_mm)
+    if geometry is None:
+        geom, report = density_outline(design, rho, cfg.threshold, cfg.smooth_mm)
+        outline = f"outline (threshold {cfg.threshold:g}, smoothing {cfg.smooth_mm:g} mm)"
+    else:
+        geom, outline = geometry, "exact outline"
+        report = {"hydrogel_fraction": float(geom.area / design.size_mm ** 2), "pieces": len(shapely_parts(geom)),
+                  "pieces_dropped": 0, "dropped_area_mm2": 0.0}
     if not geom.is_empty:
         write_geojson(geom, out / "layout.geojson")
         files["geojson"] = str(out / "layout.geojson")
@@ -293,13 +323,12 @@ def write_outputs(design, rho: np.ndarray, cfg: FreeformConfig, out: Path, histo
         fig.savefig(out / "convergence.png", dpi=100)
         plt.close(fig)
         files["convergence"] = str(out / "convergence.png")
-    lines = [f"free-form layout: {cfg.cells} x {cfg.cells} cells, symmetry {cfg.symmetry}, minimum feature "
-             f"{cfg.min_feature_mm:g} mm, pads {cfg.pad_mm:g} mm, {len(history)} evaluations",
+    lines = [*extra_lines, f"{len(history)} evaluations, {cfg.cells} x {cfg.cells} cells, symmetry {cfg.symmetry}",
              f"final density: gel fraction {rho.mean():.4f}, grey cells {np.mean((rho > 0.05) & (rho < 0.95)):.3f}"]
     if history:
         last = history[-1]
         lines.append(f"last evaluation: mean V_rel {last['v_rel']:.5f}, stretch {last['stretch']:.4f}")
-    lines.append(f"outline (threshold {cfg.threshold:g}, smoothing {cfg.smooth_mm:g} mm): gel fraction "
+    lines.append(f"{outline}: gel fraction "
                  f"{report['hydrogel_fraction']:.4f}, {report['pieces']} pieces, {report['pieces_dropped']} "
                  f"dropped (no electrode), {report['dropped_area_mm2']:.1f} mm^2 dropped")
     if "not_castable" in report:

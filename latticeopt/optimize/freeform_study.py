@@ -1,5 +1,6 @@
-"""Reading a ``kind = "freeform"`` study: ``[design]`` (the sensor), ``[phantoms]``, ``[mesh]`` (``size_mm``,
-``layer_cells``), ``[physics]`` and ``[freeform]`` (:class:`~latticeopt.optimize.freeform.FreeformConfig`).
+"""Reading a ``kind = "freeform"`` or ``"graded"`` study: ``[design]`` (the sensor), ``[phantoms]``, ``[mesh]``
+(``size_mm``, ``layer_cells``), ``[physics]`` and ``[freeform]`` (:class:`~latticeopt.optimize.freeform.FreeformConfig`)
+or ``[graded]`` (:class:`~latticeopt.optimize.graded.GradedConfig`).
 
 Errors name the file and dotted key (or ``--set key``), what was expected and what arrived; everything is checked
 before any meshing.
@@ -13,8 +14,11 @@ from pathlib import Path
 
 from ..errors import ParameterError
 from .freeform import FreeformConfig
+from .graded import GradedConfig
 
-_TOP = ("name", "kind", "description", "out", "jobs", "design", "phantoms", "mesh", "physics", "freeform")
+#: Density-layout study kinds -> their table and its config.
+KINDS = {"freeform": FreeformConfig, "graded": GradedConfig}
+_TOP = ("name", "kind", "description", "out", "jobs", "design", "phantoms", "mesh", "physics")
 
 
 @dataclass(frozen=True, eq=False)
@@ -28,11 +32,12 @@ class FreeformStudy:
     phantoms: tuple
     mesh: object
     physics: object
-    config: FreeformConfig
+    config: FreeformConfig | GradedConfig
+    kind: str = "freeform"
 
 
-def is_freeform(raw: Mapping) -> bool:
-    return raw.get("kind") == "freeform"
+def is_density_study(raw: Mapping) -> bool:
+    return raw.get("kind") in KINDS
 
 
 def freeform_from_dict(raw: Mapping, source: str, overridden: Sequence[str] = ()) -> FreeformStudy:
@@ -49,11 +54,15 @@ def freeform_from_dict(raw: Mapping, source: str, overridden: Sequence[str] = ()
         key = exc.name if exc.name.startswith(table + ".") else f"{table}.{exc.name}"
         return ParameterError(name(key), exc.expected, exc.got)
 
-    unknown = sorted(set(raw) - set(_TOP))
+    kind = raw.get("kind")
+    if kind not in KINDS:
+        raise ParameterError(name("kind"), "one of " + ", ".join(KINDS), kind)
+    top = (*_TOP, kind)
+    unknown = sorted(set(raw) - set(top))
     if unknown:
-        raise ParameterError(name(unknown[0]), "a key among " + ", ".join(_TOP), unknown[0])
+        raise ParameterError(name(unknown[0]), "a key among " + ", ".join(top), unknown[0])
     tables = {}
-    for t in ("design", "phantoms", "mesh", "physics", "freeform"):
+    for t in ("design", "phantoms", "mesh", "physics", kind):
         tables[t] = raw.get(t, {})
         if not isinstance(tables[t], Mapping):
             raise ParameterError(name(t), "a table", tables[t])
@@ -91,12 +100,12 @@ def freeform_from_dict(raw: Mapping, source: str, overridden: Sequence[str] = ()
     except ParameterError as exc:
         raise rename(exc, "physics") from None
     try:
-        config = FreeformConfig.from_dict(dict(tables["freeform"]))
+        config = KINDS[kind].from_dict(dict(tables[kind]))
     except ParameterError as exc:
-        raise rename(exc, "freeform") from None
+        raise rename(exc, kind) from None
     except TypeError as exc:
-        raise ParameterError(name("freeform"), "keys of the right types", str(exc)) from None
+        raise ParameterError(name(kind), "keys of the right types", str(exc)) from None
     stem = Path(source).stem
     return FreeformStudy(name=str(raw.get("name", stem)), description=str(raw.get("description", "")),
                          out_dir=Path(raw.get("out", f"runs/{stem}")), design=design, phantoms=phantoms,
-                         mesh=mesh_settings, physics=physics, config=config)
+                         mesh=mesh_settings, physics=physics, config=config, kind=kind)

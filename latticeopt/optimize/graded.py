@@ -1,0 +1,108 @@
+"""Graded square lattices: a channel width per line (grouped by the sensor's symmetry), maximized by MMA with
+adjoint gradients through the lines' smooth density (:class:`~latticeopt.density.graded.GradedSquare`).
+
+A ``kind = "graded"`` study (``studies/optimize_graded.toml``) shares the free-form studies' tables and loop
+(:func:`~latticeopt.optimize.freeform.optimize_density`: resumable, a line per evaluation, the hydrogel fraction
+bounds and the stretch cap as constraints); the fabrication limits are bounds: every channel at least
+``min_width_mm``, every island at least ``min_island_mm`` (``w <= pitch - min_island``). The outline it writes is
+exact (the union of the channel rectangles), so the grid mesher meshes it exactly.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .. import _validate as v
+from ..errors import ParameterError
+from .freeform import FREEFORM_ALGORITHMS, FreeformResult, optimize_density, write_outputs
+
+
+@dataclass(frozen=True)
+class GradedConfig:
+    """The ``[graded]`` table (``docs/studies.md``)."""
+
+    cells: int = 50
+    symmetry: str = "d4"
+    min_width_mm: float = 1.0
+    min_island_mm: float = 2.0
+    start_width_mm: float = 4.0
+    smoothing_mm: float = 0.5
+    samples: int = 4
+    max_hydrogel_fraction: float = 1.0
+    min_hydrogel_fraction: float = 0.0
+    max_stretch: float | None = None
+    iterations: int = 20
+    algorithm: str = "LD_MMA"
+
+    def __post_init__(self) -> None:
+        from ..density.field import MAX_CELLS, MIN_CELLS
+        from ..density.graded import GRADED_SYMMETRIES
+
+        set_ = object.__setattr__
+        set_(self, "cells", v.integer("graded.cells", self.cells, lo=MIN_CELLS, hi=MAX_CELLS))
+        set_(self, "symmetry", v.choice("graded.symmetry", self.symmetry, GRADED_SYMMETRIES))
+        set_(self, "min_width_mm", v.real("graded.min_width_mm", self.min_width_mm, lo=0.05, hi=50.0))
+        set_(self, "min_island_mm", v.real("graded.min_island_mm", self.min_island_mm, lo=0.0, hi=50.0))
+        set_(self, "start_width_mm", v.real("graded.start_width_mm", self.start_width_mm, lo=self.min_width_mm,
+                                            hi=50.0))
+        set_(self, "smoothing_mm", v.real("graded.smoothing_mm", self.smoothing_mm, lo=0.0, lo_open=True, hi=10.0))
+        set_(self, "samples", v.integer("graded.samples", self.samples, lo=1, hi=16))
+        set_(self, "max_hydrogel_fraction", v.real("graded.max_hydrogel_fraction", self.max_hydrogel_fraction,
+                                                   lo=0.0, lo_open=True, hi=1.0))
+        set_(self, "min_hydrogel_fraction", v.real("graded.min_hydrogel_fraction", self.min_hydrogel_fraction,
+                                                   lo=0.0, hi=self.max_hydrogel_fraction))
+        if self.max_stretch is not None:
+            set_(self, "max_stretch", v.real("graded.max_stretch", self.max_stretch, lo=1.0, lo_open=True, hi=10.0))
+        set_(self, "iterations", v.integer("graded.iterations", self.iterations, lo=1, hi=1000))
+        set_(self, "algorithm", v.choice("graded.algorithm", self.algorithm, FREEFORM_ALGORITHMS))
+
+    # the shared loop's view: one stage
+    betas = (1.0,)
+
+    @property
+    def iterations_per_beta(self) -> int:
+        return self.iterations
+
+    @classmethod
+    def from_dict(cls, values: dict | None) -> GradedConfig:
+        values = dict(values or {})
+        valid = list(cls.__dataclass_fields__)
+        unknown = sorted(set(values) - set(valid))
+        if unknown:
+            raise ParameterError(f"graded.{unknown[0]}", "a key among " + ", ".join(valid), unknown[0])
+        return cls(**values)
+
+
+def run_graded(design, phantoms: list, mesh_settings, physics, cfg: GradedConfig, out_dir,
+               progress: Callable[[str], None] | None = print) -> FreeformResult:
+    """Run (or resume) a graded-lattice optimization into ``out_dir`` (module docstring)."""
+    from ..density.graded import GradedSquare
+
+    param = GradedSquare(design, cfg.cells, cfg.symmetry, cfg.smoothing_mm, cfg.samples)
+    upper_w = design.pitch_mm - cfg.min_island_mm
+    if upper_w < max(cfg.min_width_mm, cfg.start_width_mm):
+        raise ParameterError("graded.min_island_mm", f"room for a channel of at least start_width_mm "
+                             f"{cfg.start_width_mm:g} mm at pitch {design.pitch_mm:g} mm", cfg.min_island_mm)
+    n = param.n_variables
+    x, history, rho, ev = optimize_density(design, phantoms, mesh_settings, physics, cfg, param,
+                                           np.full(n, cfg.start_width_mm), np.full(n, cfg.min_width_mm),
+                                           np.full(n, upper_w), out_dir, progress)
+    widths = param.widths(x)
+    m = len(param.lines_mm)
+    table = {"lines_mm": param.lines_mm.tolist(), "widths_along_y_mm": widths[:m].tolist(),
+             "widths_along_x_mm": widths[m:].tolist(), "variables_mm": x.tolist(), "symmetry": cfg.symmetry}
+    out = Path(out_dir)
+    (out / "widths.json").write_text(json.dumps(table, indent=1))
+    lines = (f"graded square lattice: pitch {design.pitch_mm:g} mm, widths (mm) of the lines at "
+             + ", ".join(f"{c:g}" for c in param.lines_mm) + ": along y " + ", ".join(f"{w:.3f}" for w in widths[:m])
+             + "; along x " + ", ".join(f"{w:.3f}" for w in widths[m:]),
+             f"fabrication bounds: {cfg.min_width_mm:g} <= w <= {upper_w:g} mm (islands >= {cfg.min_island_mm:g} mm)")
+    files = write_outputs(design, rho, cfg, out, history, geometry=param.polygons(x), extra_lines=lines)
+    files["widths"] = str(out / "widths.json")
+    return FreeformResult(density=rho, variables=x, v_rel=ev.v_rel, hydrogel_fraction=float(rho.mean()),
+                          evaluations=len(history), history=history, files=files)
