@@ -23,6 +23,7 @@ from latticeopt.design import LatticeDesign
 from latticeopt.errors import LatticeoptError, ParameterError
 from latticeopt.mesh import MeshSettings
 from latticeopt.optimize import load_optimization, optimization_from_dict, run_optimization
+from latticeopt.optimize.objectives import Objective
 from latticeopt.recon.presses import PRESS_RATIO
 from latticeopt.study.imaging import (
     ReconstructorCache,
@@ -32,7 +33,6 @@ from latticeopt.study.imaging import (
     probe_image_figures,
     probe_presses,
 )
-from latticeopt.study.objectives import Objective
 from latticeopt.study.settings import EvalSettings
 
 TESTS = Path(__file__).parent
@@ -370,3 +370,32 @@ def test_shipped_optimize_image_study_matches_the_square_study_but_for_the_objec
     mean = load_optimization(path, ["optimize.objective=mean", "name=optimize_image_mean"])
     assert mean.config.objective.weights == (("mean", 1.0),) and mean.probes == ()
     assert mean.study.settings.key == img.study.settings.key and mean.study.phantoms == img.study.phantoms
+
+
+@pytest.mark.parametrize("weights", [(("mean", 1.0),), (("robust", 1.0),), (("uniformity", 1.0),),
+                                     (("mean", 1.0), ("uniformity", 0.05))])
+def test_term_gradients_against_differences(weights):
+    """Every term with a gradient: per-phantom V_rel linear in a parameter vector, the score's gradient from the
+    term table against central differences of the score."""
+    rng = np.random.default_rng(3)
+    A, B = rng.random((12, 5)), rng.random((9, 5))  # V_rel of 12 phantoms and 9 probes, linear in theta
+    theta = rng.random(5)
+    obj = Objective(weights=weights, quantile=0.3)
+
+    def score(t):
+        return obj.evaluate(A @ t, B @ t).score
+
+    g = obj.gradient(A @ theta, B @ theta, A, B)
+    for k in range(5):
+        e = np.zeros(5)
+        e[k] = 1e-6
+        assert g[k] == pytest.approx((score(theta + e) - score(theta - e)) / 2e-6, rel=1e-5, abs=1e-9)
+
+
+def test_term_table_names_every_term_and_refuses_image_gradients():
+    with pytest.raises(ParameterError) as exc:
+        Objective(weights=(("uniformty", 1.0),))
+    for name in ("mean", "robust", "uniformity", "image_cc"):
+        assert name in str(exc.value)
+    with pytest.raises(ParameterError, match="adjoint gradients"):
+        Objective(weights=(("image_cc", 1.0),)).gradient([0.1], [0.1], np.ones((1, 2)), np.ones((1, 2)))

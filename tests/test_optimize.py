@@ -41,7 +41,7 @@ from latticeopt.optimize import (
     optimization_from_dict,
     run_optimization,
 )
-from latticeopt.study.objectives import Objective
+from latticeopt.optimize.objectives import Objective
 from latticeopt.study.store import ResultStore
 
 TESTS = Path(__file__).parent

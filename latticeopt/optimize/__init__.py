@@ -5,7 +5,7 @@
 >>> result.best.x, result.best.score, result.best.se  # doctest: +SKIP
 
 A study file with an ``[optimize]`` table (schema: ``docs/studies.md``) names the design variables with their
-bounds and start, the objective (:mod:`latticeopt.study.objectives`), the constraints, the nlopt algorithm and the
+bounds and start, the objective (:mod:`latticeopt.optimize.objectives`), the constraints, the nlopt algorithm and the
 stopping rules. Every candidate design is evaluated on the study's fixed phantoms through the sweep engine
 (:func:`latticeopt.study.sweep.evaluate_designs`), so every phantom result lands in the same SQLite store as sweeps
 and a design already stored is read, not recomputed.

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING
 
 from .. import _validate as v
 from ..errors import ParameterError
-from ..study.objectives import Objective
+from .objectives import Objective
 
 if TYPE_CHECKING:
     from .problem import Problem

@@ -14,9 +14,9 @@ from pathlib import Path
 from ..design import LatticeDesign
 from ..errors import ParameterError
 from ..study.config import apply_overrides, study_from_dict
-from ..study.objectives import TERMS, Objective
 from ..touches import validate_touches
 from .config import CONTINUOUS_FIELDS, Constraints, OptimizeConfig, Variable
+from .objectives import TERMS, Objective
 from .problem import Optimization, Problem
 
 __all__ = ["load_categories", "load_optimization", "optimization_from_dict", "read_study_table"]

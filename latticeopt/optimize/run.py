@@ -15,12 +15,12 @@ import numpy as np
 from ..design import LatticeDesign
 from ..errors import AllFailedError, LatticeoptError, ParameterError
 from ..study.imaging import FIGURES, ReconstructorCache, probe_image_figures, probe_presses
-from ..study.objectives import Objective
 from ..study.phantoms import Phantom
 from ..study.report import mean_se
 from ..study.settings import EvalSettings
 from ..study.store import folder_lock
 from .driver import Assessment, Optimum, Step, minimize
+from .objectives import Objective
 from .problem import Optimization
 
 __all__ = ["OptimizationResult", "assess_design", "run_optimization"]

@@ -1,7 +1,7 @@
 """The ``image_cc`` objective term: one-step images of the probe presses against their footprints.
 
 What a user of the sensor finally sees is an image, so besides V_rel statistics a design can be scored on the
-images its presses give. For each probe press (:meth:`latticeopt.study.objectives.Objective.probes`: one punch
+images its presses give. For each probe press (:meth:`latticeopt.optimize.objectives.Objective.probes`: one punch
 per cell of an ``n x n`` grid, simulated by the coupled model through the results store like any phantom):
 
 1. the relative change ``y = V / V_ref - 1`` of the press's stored touched voltages ``V``;

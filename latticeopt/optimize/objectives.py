@@ -49,19 +49,83 @@ import numpy as np
 
 from .. import _validate as v
 from ..errors import ParameterError
+from ..study.phantoms import Phantom
 from ..touches import Touch
-from .phantoms import Phantom
 
-__all__ = ["PROBE_TERMS", "TERMS", "Objective", "ObjectiveValue"]
-
-#: The objective terms, each with a one-line meaning (documentation and error messages).
-TERMS = {"mean": "mean V_rel over the random phantoms",
-         "robust": "lower quantile of V_rel over the random phantoms",
-         "uniformity": "1 - coefficient of variation of V_rel over the probe grid",
-         "image_cc": "mean correlation of the probe presses' one-step images with their footprints"}
-#: Terms computed on the probe grid.
-PROBE_TERMS = ("uniformity", "image_cc")
+__all__ = ["PROBE_TERMS", "TERMS", "Objective", "ObjectiveValue", "Term"]
 _BOOTSTRAP_SEED = 20250101
+
+
+def _mean(o, r, p, c):
+    return float(np.mean(r)) if r.size else math.nan
+
+
+def _mean_grad(o, r, p, gr, gp):
+    return np.mean(gr, axis=0), None
+
+
+def _robust(o, r, p, c):
+    return float(np.quantile(r, o.quantile)) if r.size else math.nan
+
+
+def _robust_grad(o, r, p, gr, gp):
+    # numpy's linear quantile: the two order statistics around position q (n - 1), linearly weighted
+    pos = o.quantile * (r.size - 1)
+    order = np.argsort(r, kind="stable")
+    lo, frac = int(np.floor(pos)), pos - np.floor(pos)
+    hi = min(lo + 1, r.size - 1)
+    return (1 - frac) * gr[order[lo]] + frac * gr[order[hi]], None
+
+
+def _uniformity(o, r, p, c):
+    m = float(np.mean(p)) if p.size else math.nan
+    return 1.0 - float(np.std(p)) / m if m > 0 else math.nan
+
+
+def _uniformity_grad(o, r, p, gr, gp):
+    # 1 - s/m with s the population std: d/dp_k = -(p_k - m) / (n s m) + s / (n m^2)
+    n, m, s = p.size, float(np.mean(p)), float(np.std(p))
+    w = -(p - m) / (n * s * m) + s / (n * m * m) if s > 0 else np.full(n, 0.0)
+    return None, np.tensordot(w, gp, axes=1)
+
+
+def _image_cc(o, r, p, c):
+    return float(np.mean(c)) if c.size else math.nan
+
+
+@dataclass(frozen=True)
+class Term:
+    """One objective term: its meaning, the data it needs, its value and (where the adjoint reaches) its gradient.
+
+    ``value(objective, random_v, probe_v, probe_cc) -> float``; ``gradient(objective, random_v, probe_v,
+    random_grads, probe_grads) -> (d/d layout through the random phantoms or None, through the probes or None)``,
+    the grads stacked per phantom (shape ``(n, ...)``); None: no gradient (``image_cc`` goes through a
+    reconstruction).
+    """
+
+    name: str
+    description: str
+    needs: str
+    value: object
+    gradient: object = None
+    label: object = None
+
+    def describe(self, objective) -> str:
+        return self.label(objective) if self.label else self.name
+
+
+#: The objective terms, in score order: the one table of their meanings, data, values and gradients.
+TERMS = {t.name: t for t in (
+    Term("mean", "mean V_rel over the random phantoms", "random", _mean, _mean_grad, lambda o: "mean V_rel"),
+    Term("robust", "lower quantile of V_rel over the random phantoms", "random", _robust, _robust_grad,
+         lambda o: f"q{o.quantile:g} V_rel"),
+    Term("uniformity", "1 - coefficient of variation of V_rel over the probe grid", "probes", _uniformity,
+         _uniformity_grad),
+    Term("image_cc", "mean correlation of the probe presses' one-step images with their footprints", "images",
+         _image_cc, None, lambda o: f"image CC ({o.image_prior}, lambda {o.image_lambda:g})"),
+)}
+#: Terms computed on the probe grid.
+PROBE_TERMS = tuple(k for k, t in TERMS.items() if t.needs in ("probes", "images"))
 
 
 @dataclass(frozen=True)
@@ -122,7 +186,8 @@ class Objective:
         w = dict(self.weights)
         for k, val in w.items():
             if k not in TERMS:
-                raise ParameterError("objective", "terms among " + ", ".join(TERMS), k)
+                raise ParameterError("objective", "terms among " + ", ".join(
+                    f"{n} ({t.description})" for n, t in TERMS.items()), k)
             w[k] = v.real(k, val, lo=0)
         if not any(x > 0 for x in w.values()):
             raise ParameterError("objective", "at least one term with a weight > 0", dict(self.weights))
@@ -151,8 +216,7 @@ class Objective:
     def describe(self) -> str:
         parts = []
         for k, w in self.weights:
-            name = {"robust": f"q{self.quantile:g} V_rel", "mean": "mean V_rel",
-                    "image_cc": f"image CC ({self.image_prior}, lambda {self.image_lambda:g})"}.get(k, k)
+            name = TERMS[k].describe(self)
             parts.append(name if w == 1 else f"{w:g} x {name}")
         return " + ".join(parts)
 
@@ -173,18 +237,31 @@ class Objective:
 
     # -- evaluation --------------------------------------------------------------------------------------
     def _terms(self, random_v: np.ndarray, probe_v: np.ndarray, probe_cc: np.ndarray) -> dict:
-        out = {}
-        for k, _ in self.weights:
-            if k == "mean":
-                out[k] = float(np.mean(random_v)) if random_v.size else math.nan
-            elif k == "robust":
-                out[k] = float(np.quantile(random_v, self.quantile)) if random_v.size else math.nan
-            elif k == "image_cc":
-                out[k] = float(np.mean(probe_cc)) if probe_cc.size else math.nan
-            else:
-                m = float(np.mean(probe_v)) if probe_v.size else math.nan
-                out[k] = 1.0 - float(np.std(probe_v)) / m if m > 0 else math.nan
-        return out
+        return {k: TERMS[k].value(self, random_v, probe_v, probe_cc) for k, _ in self.weights}
+
+    @property
+    def differentiable(self) -> bool:
+        """Every weighted term has an adjoint gradient (not ``image_cc``)."""
+        return all(TERMS[k].gradient is not None for k, _ in self.weights)
+
+    def gradient(self, random_v, probe_v, random_grads, probe_grads):
+        """Gradient of the score with respect to a layout, from per-phantom values and gradients.
+
+        Parameters
+        ----------
+        random_v, probe_v : ndarray, shapes (n,), (m,)
+        random_grads, probe_grads : ndarray, shapes (n, ...), (m, ...)
+            Each phantom's (probe's) ``d V_rel / d layout``.
+        """
+        r, p = (np.asarray(x, dtype=float).ravel() for x in (random_v, probe_v))
+        total = 0.0
+        for k, w in self.weights:
+            if TERMS[k].gradient is None:
+                raise ParameterError("objective", "terms with adjoint gradients (" + ", ".join(
+                    n for n, t in TERMS.items() if t.gradient is not None) + ")", k)
+            g_r, g_p = TERMS[k].gradient(self, r, p, np.asarray(random_grads), np.asarray(probe_grads))
+            total = total + w * sum(g for g in (g_r, g_p) if g is not None)
+        return total
 
     def _score(self, terms: Mapping[str, float]) -> float:
         return float(sum(w * terms[k] for k, w in self.weights))
