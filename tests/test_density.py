@@ -174,3 +174,22 @@ def test_chain_rule_to_the_channel_width(model):
           - model.evaluate(density_of_design(design.replace(width_mm=6.0 - h), N, s), PRESS, gradient=False).v_rel
           ) / (2 * h)
     assert abs(chain - fd) <= 1e-4 * abs(fd)
+
+
+def test_sharp_jumps_become_grid_lines():
+    """Cells finer than the mesh: without the density the elements straddle a sharp edge and are grey; with it
+    (what simulate --density does) every element is 0 or 1, and a small change of the density keeps the mesh."""
+    from latticeopt.density.mesh import cell_matrix
+
+    d = np.zeros((32, 32))
+    d[:, 5:7] = 1.0   # a channel between x = 15.625 and 21.875 mm: edges inside the 6.25 mm columns of the mesh
+    d[20:23, :] = 1.0
+    grey = []
+    for sharp in (None, d):
+        mesh = density_mesh(LatticeDesign(thickness_mm=3.0), 32, MeshSettings(size_mm=8.0), sharp)
+        A, _ = cell_matrix(mesh, 32)
+        rho = A @ d.ravel()
+        grey.append(int(np.sum((rho > 1e-9) & (rho < 1 - 1e-9))))
+    assert grey[0] > 0 and grey[1] == 0
+    nudged = density_mesh(LatticeDesign(thickness_mm=3.0), 32, MeshSettings(size_mm=8.0), np.clip(d + 1e-3, 0, 1))
+    assert nudged.n_nodes == density_mesh(LatticeDesign(thickness_mm=3.0), 32, MeshSettings(size_mm=8.0), d).n_nodes

@@ -30,23 +30,43 @@ def uniform_design(design: LatticeDesign) -> LatticeDesign:
                          electrode_positions_mm=design.electrode_positions_mm)
 
 
-def _lines(base: LatticeDesign, axis: int, n: int, size_mm: float) -> np.ndarray:
+#: A cell edge across which the density jumps by at least this much somewhere is a grid line of the mesh.
+SHARP_JUMP = 0.5
+
+
+def sharp_edges(density: np.ndarray, axis: int) -> np.ndarray:
+    """Indices ``k`` (1..n-1) of the cell edges at ``k L/n`` along ``axis`` (0: x, between columns; 1: y, between
+    rows) across which ``density`` jumps by at least :data:`SHARP_JUMP` somewhere."""
+    d = np.asarray(density, dtype=float)
+    jump = np.abs(np.diff(d, axis=1 - axis)).max(axis=axis)
+    return np.flatnonzero(jump >= SHARP_JUMP) + 1
+
+
+def _lines(base: LatticeDesign, axis: int, n: int, size_mm: float, sharp: np.ndarray) -> np.ndarray:
     L = base.size_mm
     step = max(1, int(np.floor(size_mm / (L / n) + 1e-9)))
-    cells = np.linspace(0.0, L, n + 1)[::step]
-    breaks = np.unique(np.round(np.r_[_axis_breakpoints(base, axis), cells, L], 9))
+    edges = np.linspace(0.0, L, n + 1)
+    breaks = np.unique(np.round(np.r_[_axis_breakpoints(base, axis), edges[::step], edges[sharp], L], 9))
     return _subdivide(breaks, size_mm, lambda a, b: 1)
 
 
-def density_mesh(design: LatticeDesign, n: int, settings: MeshSettings | None = None) -> TetMesh:
+def density_mesh(design: LatticeDesign, n: int, settings: MeshSettings | None = None,
+                 density: np.ndarray | None = None) -> TetMesh:
     """The mesh a density layout of ``n x n`` cells is solved on (module docstring); ``settings`` gives
-    ``size_mm`` and ``layer_cells`` (its other fields do not apply)."""
+    ``size_mm`` and ``layer_cells`` (its other fields do not apply).
+
+    ``density`` (optional, shape ``(n, n)``): also put grid lines on the cell edges across which it jumps by at
+    least :data:`SHARP_JUMP` (:func:`sharp_edges`), so a sharp layout's edges are element faces even where its
+    cells are finer than the mesh (the sharp limit: a 0/1 lattice is then meshed like its conforming mesh). The
+    lines depend on the density only through its jumps: a small change of the density keeps the mesh.
+    """
     s = settings or MeshSettings()
     base = uniform_design(design)
-    x, y = _lines(base, 0, n, s.size_mm), _lines(base, 1, n, s.size_mm)
+    sharp = [np.zeros(0, dtype=int)] * 2 if density is None else [sharp_edges(density, a) for a in (0, 1)]
+    x, y = _lines(base, 0, n, s.size_mm, sharp[0]), _lines(base, 1, n, s.size_mm, sharp[1])
     z = z_coordinates(base, s.size_mm, s.layer_cells)
     mesh = tensor_mesh(base, x, y, z)
-    info = {**mesh.info, "mesher": "density", "density_cells": n,
+    info = {**mesh.info, "mesher": "density", "density_cells": n, "sharp_lines": sum(len(k) for k in sharp),
             "settings": {"size_mm": s.size_mm, "layer_cells": s.layer_cells}, "design": base.as_dict()}
     return dataclasses.replace(mesh, info=info)
 

@@ -114,17 +114,23 @@ class DensityModel:
         interpolation. Only ``conductivity_law = "geometry"``.
     law
         :class:`~latticeopt.density.field.InterpolationLaw`.
+    sharp_from : ndarray, shape (n, n), optional
+        A density whose jumps become grid lines (:func:`~latticeopt.density.mesh.density_mesh`): what
+        ``simulate --density`` passes, so a sharp layout is meshed at its edges. An optimizer leaves it out (its
+        mesh stays fixed while the density changes).
     """
 
     def __init__(self, design: LatticeDesign, n_cells: int, mesh_settings: MeshSettings | None = None,
-                 physics: PhysicsSettings | None = None, law: InterpolationLaw | None = None):
+                 physics: PhysicsSettings | None = None, law: InterpolationLaw | None = None,
+                 sharp_from: np.ndarray | None = None):
         t0 = time.perf_counter()
         self.physics = physics or PhysicsSettings()
         if self.physics.conductivity_law != "geometry":
             raise ParameterError("conductivity_law", "'geometry' for density layouts", self.physics.conductivity_law)
         self.law = law or InterpolationLaw()
         self.n = check_density(np.zeros((n_cells, n_cells)), "n_cells").shape[0]
-        self.mesh = density_mesh(design, self.n, mesh_settings)
+        self.mesh = density_mesh(design, self.n, mesh_settings,
+                                 None if sharp_from is None else check_density(sharp_from, "sharp_from"))
         self.cells, self.layer_tets = cell_matrix(self.mesh, self.n)
         indent = self.physics.indent_settings()
         m = indent.materials
