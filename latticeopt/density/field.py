@@ -43,7 +43,7 @@ def check_density(density, name: str = "density") -> np.ndarray:
     if not np.all(np.isfinite(d)):
         raise ParameterError(name, "finite values in [0, 1]", f"{int(np.sum(~np.isfinite(d)))} NaN/inf values")
     if d.min() < 0 or d.max() > 1:
-        raise ParameterError(name, "values in [0, 1]", f"values from {d.min():g} to {d.max():g}")
+        raise ParameterError(name, "values in [0, 1]", f"values from {d.min()!r} to {d.max()!r}")
     return d
 
 

@@ -140,7 +140,7 @@ class FreeForm:
     def _forward(self, x, beta):
         rho_f = self._H @ (self._S @ np.asarray(x, dtype=float))
         rho, d = heaviside(rho_f, beta, self.eta)
-        rho = np.where(self._pads, 1.0, rho)
+        rho = np.where(self._pads, 1.0, np.clip(rho, 0.0, 1.0))  # the projection's round-off can pass 1 by 1e-16
         return rho, np.where(self._pads, 0.0, d)
 
     def gradient(self, x: np.ndarray, beta: float, grad_density: np.ndarray) -> np.ndarray:

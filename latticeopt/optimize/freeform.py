@@ -238,6 +238,7 @@ def optimize_density(design, phantoms: list, mesh_settings, physics, cfg, param,
         if cfg.max_stretch is not None:
             opt.add_inequality_constraint(stretch_cap, 1e-4)
         opt.set_maxeval(remaining)
+        opt.set_xtol_rel(1e-6)  # MMA parked on its bounds otherwise repeats the same point until maxeval
         try:
             x = opt.optimize(x)
         except nlopt.RoundoffLimited:
