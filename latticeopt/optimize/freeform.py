@@ -17,8 +17,9 @@ import logging
 import math
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 
@@ -32,58 +33,77 @@ FREEFORM_ALGORITHMS = ("LD_MMA", "LD_CCSAQ")
 
 
 @dataclass(frozen=True)
-class FreeformConfig:
-    """The ``[freeform]`` table (meanings: module docstring and ``docs/studies.md``)."""
+class DensityStudyConfig:
+    """What the free-form and graded tables share: the density grid, symmetry, constraints and algorithm.
 
+    Subclasses name their table in ``TABLE`` (errors say ``<table>.<key>``) and check their own keys in
+    ``_check``."""
+
+    TABLE: ClassVar[str] = "density"
     cells: int = 50
     symmetry: str = "d4"
-    min_feature_mm: float = 4.0
-    pad_mm: float = 4.0
-    start: float = 0.5
-    max_hydrogel_fraction: float = 0.5
+    max_hydrogel_fraction: float = 1.0
     min_hydrogel_fraction: float = 0.0
     max_stretch: float | None = None
-    betas: tuple = (1.0, 2.0, 4.0, 8.0, 16.0)
-    iterations_per_beta: int = 10
     algorithm: str = "LD_MMA"
-    threshold: float = 0.5
-    smooth_mm: float = 0.5
 
     def __post_init__(self) -> None:
         from ..density.field import MAX_CELLS, MIN_CELLS
         from ..density.projection import SYMMETRIES
 
+        t = self.TABLE
         set_ = object.__setattr__
-        set_(self, "cells", v.integer("freeform.cells", self.cells, lo=MIN_CELLS, hi=MAX_CELLS))
-        set_(self, "symmetry", v.choice("freeform.symmetry", self.symmetry, SYMMETRIES))
+        set_(self, "cells", v.integer(f"{t}.cells", self.cells, lo=MIN_CELLS, hi=MAX_CELLS))
+        set_(self, "symmetry", v.choice(f"{t}.symmetry", self.symmetry, SYMMETRIES))
+        set_(self, "max_hydrogel_fraction", v.real(f"{t}.max_hydrogel_fraction", self.max_hydrogel_fraction,
+                                                   lo=0.0, lo_open=True, hi=1.0))
+        set_(self, "min_hydrogel_fraction", v.real(f"{t}.min_hydrogel_fraction", self.min_hydrogel_fraction,
+                                                   lo=0.0, hi=self.max_hydrogel_fraction))
+        if self.max_stretch is not None:
+            set_(self, "max_stretch", v.real(f"{t}.max_stretch", self.max_stretch, lo=1.0, lo_open=True, hi=10.0))
+        set_(self, "algorithm", v.choice(f"{t}.algorithm", self.algorithm, FREEFORM_ALGORITHMS))
+        self._check(set_)
+
+    def _check(self, set_) -> None:
+        """The subclass's own keys."""
+
+    @classmethod
+    def from_dict(cls, values: dict | None):
+        values = dict(values or {})
+        valid = [f.name for f in fields(cls)]
+        unknown = sorted(set(values) - set(valid))
+        if unknown:
+            raise ParameterError(f"{cls.TABLE}.{unknown[0]}", "a key among " + ", ".join(valid), unknown[0])
+        return cls(**values)
+
+
+@dataclass(frozen=True)
+class FreeformConfig(DensityStudyConfig):
+    """The ``[freeform]`` table (meanings: module docstring and ``docs/studies.md``)."""
+
+    TABLE: ClassVar[str] = "freeform"
+    max_hydrogel_fraction: float = 0.5
+    min_feature_mm: float = 4.0
+    pad_mm: float = 4.0
+    start: float = 0.5
+    betas: tuple = (1.0, 2.0, 4.0, 8.0, 16.0)
+    iterations_per_beta: int = 10
+    threshold: float = 0.5
+    smooth_mm: float = 0.5
+
+    def _check(self, set_) -> None:
         set_(self, "min_feature_mm", v.real("freeform.min_feature_mm", self.min_feature_mm, lo=0.0, hi=25.0))
         set_(self, "pad_mm", v.real("freeform.pad_mm", self.pad_mm, lo=0.0, hi=50.0))
         set_(self, "start", v.real("freeform.start", self.start, lo=0.0, hi=1.0))
-        set_(self, "max_hydrogel_fraction", v.real("freeform.max_hydrogel_fraction", self.max_hydrogel_fraction,
-                                                   lo=0.0, lo_open=True, hi=1.0))
-        set_(self, "min_hydrogel_fraction", v.real("freeform.min_hydrogel_fraction", self.min_hydrogel_fraction,
-                                                   lo=0.0, hi=self.max_hydrogel_fraction))
-        if self.max_stretch is not None:
-            set_(self, "max_stretch", v.real("freeform.max_stretch", self.max_stretch, lo=1.0, lo_open=True, hi=10.0))
         betas = tuple(v.real("freeform.betas", b, lo=0.0, lo_open=True, hi=1000.0) for b in np.atleast_1d(self.betas))
         if not betas or any(b2 < b1 for b1, b2 in zip(betas, betas[1:])):
             raise ParameterError("freeform.betas", "a non-empty, non-decreasing list of positive numbers", self.betas)
         set_(self, "betas", betas)
         set_(self, "iterations_per_beta", v.integer("freeform.iterations_per_beta", self.iterations_per_beta,
                                                     lo=1, hi=1000))
-        set_(self, "algorithm", v.choice("freeform.algorithm", self.algorithm, FREEFORM_ALGORITHMS))
         set_(self, "threshold", v.real("freeform.threshold", self.threshold, lo=0.0, lo_open=True, hi=1.0,
                                        hi_open=True))
         set_(self, "smooth_mm", v.real("freeform.smooth_mm", self.smooth_mm, lo=0.0, hi=10.0))
-
-    @classmethod
-    def from_dict(cls, values: dict | None) -> FreeformConfig:
-        values = dict(values or {})
-        valid = [f for f in cls.__dataclass_fields__]
-        unknown = sorted(set(values) - set(valid))
-        if unknown:
-            raise ParameterError(f"freeform.{unknown[0]}", "a key among " + ", ".join(valid), unknown[0])
-        return cls(**values)
 
 
 @dataclass(frozen=True, eq=False)

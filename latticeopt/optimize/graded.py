@@ -14,68 +14,42 @@ import json
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 
 from .. import _validate as v
 from ..errors import ParameterError
-from .freeform import FREEFORM_ALGORITHMS, FreeformResult, optimize_density, write_outputs
+from .freeform import DensityStudyConfig, FreeformResult, optimize_density, write_outputs
 
 
 @dataclass(frozen=True)
-class GradedConfig:
+class GradedConfig(DensityStudyConfig):
     """The ``[graded]`` table (``docs/studies.md``)."""
 
-    cells: int = 50
-    symmetry: str = "d4"
+    TABLE: ClassVar[str] = "graded"
     min_width_mm: float = 1.0
     min_island_mm: float = 2.0
     start_width_mm: float = 4.0
     smoothing_mm: float = 0.5
     samples: int = 4
-    max_hydrogel_fraction: float = 1.0
-    min_hydrogel_fraction: float = 0.0
-    max_stretch: float | None = None
     iterations: int = 20
-    algorithm: str = "LD_MMA"
 
-    def __post_init__(self) -> None:
-        from ..density.field import MAX_CELLS, MIN_CELLS
-        from ..density.graded import GRADED_SYMMETRIES
+    # the shared loop's view: one stage
+    betas: ClassVar[tuple] = (1.0,)
 
-        set_ = object.__setattr__
-        set_(self, "cells", v.integer("graded.cells", self.cells, lo=MIN_CELLS, hi=MAX_CELLS))
-        set_(self, "symmetry", v.choice("graded.symmetry", self.symmetry, GRADED_SYMMETRIES))
+    @property
+    def iterations_per_beta(self) -> int:
+        return self.iterations
+
+    def _check(self, set_) -> None:
         set_(self, "min_width_mm", v.real("graded.min_width_mm", self.min_width_mm, lo=0.05, hi=50.0))
         set_(self, "min_island_mm", v.real("graded.min_island_mm", self.min_island_mm, lo=0.0, hi=50.0))
         set_(self, "start_width_mm", v.real("graded.start_width_mm", self.start_width_mm, lo=self.min_width_mm,
                                             hi=50.0))
         set_(self, "smoothing_mm", v.real("graded.smoothing_mm", self.smoothing_mm, lo=0.0, lo_open=True, hi=10.0))
         set_(self, "samples", v.integer("graded.samples", self.samples, lo=1, hi=16))
-        set_(self, "max_hydrogel_fraction", v.real("graded.max_hydrogel_fraction", self.max_hydrogel_fraction,
-                                                   lo=0.0, lo_open=True, hi=1.0))
-        set_(self, "min_hydrogel_fraction", v.real("graded.min_hydrogel_fraction", self.min_hydrogel_fraction,
-                                                   lo=0.0, hi=self.max_hydrogel_fraction))
-        if self.max_stretch is not None:
-            set_(self, "max_stretch", v.real("graded.max_stretch", self.max_stretch, lo=1.0, lo_open=True, hi=10.0))
         set_(self, "iterations", v.integer("graded.iterations", self.iterations, lo=1, hi=1000))
-        set_(self, "algorithm", v.choice("graded.algorithm", self.algorithm, FREEFORM_ALGORITHMS))
-
-    # the shared loop's view: one stage
-    betas = (1.0,)
-
-    @property
-    def iterations_per_beta(self) -> int:
-        return self.iterations
-
-    @classmethod
-    def from_dict(cls, values: dict | None) -> GradedConfig:
-        values = dict(values or {})
-        valid = list(cls.__dataclass_fields__)
-        unknown = sorted(set(values) - set(valid))
-        if unknown:
-            raise ParameterError(f"graded.{unknown[0]}", "a key among " + ", ".join(valid), unknown[0])
-        return cls(**values)
 
 
 def run_graded(design, phantoms: list, mesh_settings, physics, cfg: GradedConfig, out_dir,
