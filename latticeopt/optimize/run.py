@@ -115,7 +115,7 @@ class OptimizationResult:
 @contextlib.contextmanager
 def _dask_client(scheduler, jobs: int):
     """A ``distributed.Client``: the given one, one connected to an address, or one on a local cluster of ``jobs``
-    single-threaded worker processes (as :mod:`latticeopt.study.execution` starts them)."""
+    single-threaded worker processes (as :mod:`latticeopt.execution` starts them)."""
     if scheduler is not None and not isinstance(scheduler, str):
         yield scheduler
         return
