@@ -58,7 +58,7 @@ def assess_design(design: LatticeDesign, *, phantoms: Sequence[Phantom], probes:
     the probes' stored voltages are reconstructed with the design's Jacobian from ``images`` (a per-run cache;
     ``None`` builds it afresh), :mod:`latticeopt.study.imaging`.
     """
-    from ..study.sweep import evaluate_designs
+    from ..study.engine import evaluate_designs
 
     t0 = time.perf_counter()
     evs, computed = evaluate_designs([design], list(phantoms) + list(probes), settings, out_dir, evaluate,
@@ -157,7 +157,7 @@ def run_optimization(opt: Optimization, evaluate: Callable | None = None, *, job
     callback
         Called with every :class:`Step`.
     """
-    from ..study.sweep import resolve_model
+    from ..study.engine import resolve_model
 
     t0 = time.perf_counter()
     study = opt.study
