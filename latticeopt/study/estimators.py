@@ -70,9 +70,9 @@ class PlainEstimator:
     """Every design on every phantom; the mean and SE over the phantoms every compared design solved."""
 
     study: Study
-    kind = "plain"
 
     def levels(self, settings: EvalSettings) -> tuple[Level, ...]:
+        """The settings keys this estimator evaluates under (``settings``: the study's, model resolved)."""
         return (Level("all", settings, self.study.n_tasks, self.study.n_tasks),)
 
     def describe(self, settings: EvalSettings, stored: dict[str, int]) -> list[str]:
@@ -96,7 +96,6 @@ class TwoLevelEstimator:
     """Every phantom on the coarse level, a nested subset on the fine one (:mod:`.multilevel_sweep`)."""
 
     study: Study
-    kind = "two-level"
 
     def levels(self, settings: EvalSettings) -> tuple[Level, ...]:
         study, ml = self.study, self.study.multilevel
@@ -127,7 +126,6 @@ class AdaptiveEstimator:
     """Per design a prefix of one common phantom order, until its SE meets the target (:mod:`.adaptive_sweep`)."""
 
     study: Study
-    kind = "adaptive"
 
     def levels(self, settings: EvalSettings) -> tuple[Level, ...]:
         study = self.study
