@@ -1,4 +1,4 @@
-"""Cost of the parallel executor itself (``latticeopt.study.execution.run_tasks``), apart from any model.
+"""Cost of the parallel executor itself (``latticeopt.execution.run_tasks``), apart from any model.
 
 Prints, for ``--jobs`` local workers: the wall time of a fresh run whose tasks import the coupled model (worker
 start and imports), the same for a second run straight after (reused workers start nothing), the dispatch
@@ -18,7 +18,7 @@ import time
 
 import numpy as np
 
-from latticeopt.study.execution import run_tasks
+from latticeopt.execution import run_tasks
 
 
 def _pid() -> int:

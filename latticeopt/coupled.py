@@ -142,13 +142,32 @@ class PhysicsSettings:
             set_(self, nu, law.poisson_ratio)
 
     @classmethod
-    def from_dict(cls, values: dict | None) -> PhysicsSettings:
+    def from_dict(cls, values: dict | None, *, name: str = "physics", key_name: str = "{key}") -> PhysicsSettings:
+        """Validate a ``[physics]`` table (any subset of the fields; the rest keep their defaults).
+
+        The one check of a ``[physics]`` table: studies (:class:`latticeopt.study.settings.EvalSettings`), the
+        two-level coarse physics and ``--physics`` all call it, and pass on what it returns.
+
+        Parameters
+        ----------
+        values
+            ``key -> value``.
+        name
+            What an unknown key is reported under.
+        key_name
+            What a bad value is reported under, ``{key}`` standing for its key (``"physics.{key}"`` in a study,
+            ``"--physics {key}"`` on the command line).
+        """
         values = dict(values or {})
         valid = [f.name for f in dataclasses.fields(cls)]
         unknown = sorted(set(values) - set(valid))
         if unknown:
-            raise ParameterError("physics", "keys among " + ", ".join(valid), unknown[0])
-        return cls(**values)
+            raise ParameterError(name, "keys among " + ", ".join(valid), unknown[0])
+        try:
+            return cls(**values)
+        except ParameterError as exc:
+            got = values.get(exc.name, exc.got)
+            raise ParameterError(key_name.format(key=exc.name), exc.expected, got) from None
 
     def indent_settings(self) -> IndentSettings:
         materials = Materials(silicone=NeoHookean(self.silicone_shear_kPa, self.silicone_poisson_ratio),
@@ -342,7 +361,7 @@ def _touches(phantom) -> list[Touch]:
 def model_for_settings(design: LatticeDesign, settings) -> CoupledModel:
     """The :class:`CoupledModel` a sweep evaluates ``design`` with under ``settings`` (a study's ``EvalSettings``:
     its mesh, ``[physics]``, cache folder and mechanics mesh)."""
-    return CoupledModel(design, settings.mesh, PhysicsSettings.from_dict(settings.physics), settings.cache_dir,
+    return CoupledModel(design, settings.mesh, settings.physics_settings, settings.cache_dir,
                         settings.mechanics_mesh)
 
 

@@ -33,7 +33,7 @@ import numpy as np
 from . import _validate as v
 from . import layout as _layout
 from .errors import ParameterError
-from .layout import PATTERNS, RIMS
+from .layout import PATTERNS, RIMS  # noqa: F401 (PATTERNS: re-exported for the CLI and the optimizer)
 
 #: Most channel pitches across the sensor.
 MAX_PITCHES = 200
@@ -61,7 +61,7 @@ class LatticeDesign:
         Distance ``p`` between the centre lines of the channels on either side of an island (default 12.5 mm
         puts a channel end under every electrode centre of the default square layout).
     pattern
-        Layout family; one of :data:`PATTERNS` (:mod:`latticeopt.layout`). ``"custom"`` takes its hydrogel
+        Layout family; one of :data:`~latticeopt.layout.FAMILIES`. ``"custom"`` takes its hydrogel
         from ``custom_polygons_mm`` and ignores ``width_mm`` and ``pitch_mm``.
     size_mm
         Side ``L`` of the square sensor.
@@ -106,7 +106,7 @@ class LatticeDesign:
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
-        set_(self, "pattern", v.choice("pattern", self.pattern, PATTERNS))
+        set_(self, "pattern", v.choice("pattern", self.pattern, tuple(_layout.FAMILIES)))
         set_(self, "rim", v.choice("rim", self.rim, RIMS))
         if self.electrode_leads not in (True, False):
             raise ParameterError("electrode_leads", "true or false", self.electrode_leads)
@@ -124,9 +124,10 @@ class LatticeDesign:
             "thickness_mm", self.thickness_mm, lo=0, lo_open=True, hi=room,
             expected=f"0 < thickness_mm <= total_thickness_mm - sealing_mm = {room:g} mm "
                      "(the substrate may not be negative)"))
-        w_max = _layout.MAX_WIDTH_FRACTION.get(self.pattern, np.inf) * self.pitch_mm
-        bound = "pitch_mm" if w_max == self.pitch_mm else f"2/3 pitch_mm ({self.pattern} islands vanish there)"
-        expected = f"0 (no lattice) or {MIN_WIDTH_MM:g} <= width_mm < {bound} = {w_max:g} mm"
+        family = _layout.FAMILIES[self.pattern]
+        w_max = family.max_width_fraction * self.pitch_mm
+        expected = (f"0 (no lattice) or {MIN_WIDTH_MM:g} <= width_mm < {family.max_width_text} = {w_max:g} mm"
+                    if family.parametric else f"0 or at least {MIN_WIDTH_MM:g} mm")
         w = v.real("width_mm", self.width_mm, expected=expected)
         if (w != 0 and w < MIN_WIDTH_MM) or w < 0 or w >= w_max:
             raise ParameterError("width_mm", expected, self.width_mm)
@@ -349,9 +350,11 @@ def width_for_fraction(design: LatticeDesign, fraction: float) -> LatticeDesign:
     from scipy.optimize import brentq
 
     fraction = v.real("hydrogel_fraction", fraction, lo=0, hi=1, lo_open=True, hi_open=True)
-    if design.pattern == "custom":
-        raise ParameterError("hydrogel_fraction", "a parametric pattern (a custom layout's gel is fixed)", "custom")
-    w_max = _layout.MAX_WIDTH_FRACTION[design.pattern] * design.pitch_mm * (1 - 1e-9)
+    family = _layout.FAMILIES[design.pattern]
+    if not family.parametric:
+        raise ParameterError("hydrogel_fraction", "a parametric pattern (a custom layout's gel is fixed)",
+                             design.pattern)
+    w_max = family.max_width_fraction * design.pitch_mm * (1 - 1e-9)
     lo, hi = (design.replace(width_mm=w).hydrogel_area_fraction() for w in (MIN_WIDTH_MM, w_max))
     if not lo <= fraction <= hi:
         raise ParameterError("hydrogel_fraction", f"a fraction the {design.pattern} pattern reaches at pitch "

@@ -20,6 +20,8 @@ complete-electrode ones; the 3D channels themselves are kept (pyEIT's tetrahedra
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -29,10 +31,9 @@ from ._npzfile import write_atomic, write_npz_atomic
 from .errors import ParameterError
 from .mesh.facets import boundary_faces
 from .mesh.tetmesh import electrode_name
-from .sensor_model import SensorModel
+from .sensor_model import SensorModel, save_sensor_model
 
 MM = 1e-3  # m per mm
-FORMATS = ("npz", "eidors", "pyeit")
 #: pyEIT's tetrahedral stiffness wants the opposite vertex order to ours for a positive volume.
 PYEIT_TET_ORDER = [0, 2, 1, 3]
 
@@ -175,3 +176,21 @@ def to_pyeit(model: SensorModel | str | Path):
     mesh = PyEITMesh(node=f["node"], element=f["element"], perm=f["perm"], el_pos=f["el_pos"],
                      ref_node=f["ref_node"])
     return mesh, PyEITProtocol(f["ex_mat"], f["meas_mat"], f["keep_ba"])
+
+
+@dataclass(frozen=True)
+class ExportFormat:
+    """One file format a sensor model is written in: its name, file suffix, writer and a description."""
+
+    name: str
+    suffix: str
+    writer: Callable[[SensorModel, str | Path], Path]
+    description: str
+
+
+#: The export formats, by name (``latticeopt export --format``): the one table of writer and suffix.
+FORMATS: dict[str, ExportFormat] = {f.name: f for f in (
+    ExportFormat("npz", ".npz", save_sensor_model, "latticeopt's sensor model"),
+    ExportFormat("eidors", ".mat", write_eidors_mat, "MATLAB .mat fwd_model for EIDORS"),
+    ExportFormat("pyeit", ".npz", write_pyeit_npz, ".npz of PyEITMesh and PyEITProtocol fields"),
+)}

@@ -31,17 +31,15 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from .errors import ParameterError
 
-PARAMETRIC = ("square", "hexagonal", "triangular", "diagonal")
-PATTERNS = (*PARAMETRIC, "custom")
 RIMS = ("none", "channel")
-#: Channels wider than this fraction of the pitch leave no island (triangular: its islands vanish at 2/3).
-MAX_WIDTH_FRACTION = {"square": 1.0, "diagonal": 1.0, "hexagonal": 1.0, "triangular": 2.0 / 3.0}
 
 
 def _box(x0: float, y0: float, x1: float, y1: float):
@@ -86,26 +84,38 @@ def square_lines_mm(size_mm: float, pitch_mm: float, rim: str) -> np.ndarray:
     return lines
 
 
+def _square_strips(size_mm: float, pitch_mm: float, h: float) -> list:
+    L = size_mm
+    lines = square_lines_mm(L, pitch_mm, "channel")
+    return [_box(a - h, -1, a + h, L + 1) for a in lines] + [_box(-1, a - h, L + 1, a + h) for a in lines]
+
+
+def _diagonal_strips(size_mm: float, pitch_mm: float, h: float) -> list:
+    centre, reach = np.array([size_mm / 2, size_mm / 2]), size_mm
+    offs = _line_offsets(pitch_mm, reach)
+    return _strips(45.0, offs, centre, h, reach) + _strips(135.0, offs, centre, h, reach)
+
+
+def _triangular_strips(size_mm: float, pitch_mm: float, h: float) -> list:
+    centre, reach = np.array([size_mm / 2, size_mm / 2]), size_mm
+    offs = _line_offsets(pitch_mm, reach)
+    return [s for ang in (90.0, 210.0, 330.0) for s in _strips(ang, offs, centre, h, reach)]
+
+
+def _hexagonal_strips(size_mm: float, pitch_mm: float, h: float) -> list:
+    return _honeycomb(np.array([size_mm / 2, size_mm / 2]), pitch_mm, h, size_mm)
+
+
 def _lattice(pattern: str, size_mm: float, width_mm: float, pitch_mm: float, rim: str):
     """The channel network of a parametric pattern over the whole sensor (before frame and rim band)."""
     import shapely
 
     L, h = size_mm, width_mm / 2
-    centre = np.array([L / 2, L / 2])
-    reach = L  # half-length of every strip: crosses the sensor from anywhere inside it
-    if pattern == "square":
-        lines = square_lines_mm(L, pitch_mm, "channel")
-        strips = [_box(a - h, -1, a + h, L + 1) for a in lines] + [_box(-1, a - h, L + 1, a + h) for a in lines]
-    elif pattern == "diagonal":
-        offs = _line_offsets(pitch_mm, reach)
-        strips = _strips(45.0, offs, centre, h, reach) + _strips(135.0, offs, centre, h, reach)
-    elif pattern == "triangular":
-        offs = _line_offsets(pitch_mm, reach)
-        strips = [s for ang in (90.0, 210.0, 330.0) for s in _strips(ang, offs, centre, h, reach)]
-    elif pattern == "hexagonal":
-        strips = _honeycomb(centre, pitch_mm, h, reach)
-    else:
+    family = FAMILIES.get(pattern)
+    if family is None or family.strips is None:
         raise ValueError(f"pattern: expected one of {PARAMETRIC}, got {pattern!r}")
+    # every strip crosses the sensor from anywhere inside it (half-length L)
+    strips = family.strips(L, pitch_mm, h)
     box = _box(0, 0, L, L)
     pieces = [s.intersection(box) for s in strips]
     pieces = [s for s in pieces if s.area > 1e-12 * L * L]
@@ -135,6 +145,48 @@ def _honeycomb(centre: np.ndarray, pitch: float, half_w: float, reach: float) ->
     segs = np.stack([verts, np.roll(verts, -1, axis=1)], axis=2).reshape(-1, 2, 2)
     _, first = np.unique(np.round((segs[:, 0] + segs[:, 1]) / 2, 6), axis=0, return_index=True)
     return [_rect(a, b, half_w) for a, b in segs[first]]
+
+
+@dataclass(frozen=True)
+class Family:
+    """A layout family: how its channels are laid and how wide they may be.
+
+    Attributes
+    ----------
+    name
+        The ``pattern`` value.
+    strips
+        ``(size_mm, pitch_mm, half_width_mm) -> shapely polygons`` around every channel, each crossing the
+        sensor; ``None`` for ``custom`` (the user's polygons).
+    max_width_fraction
+        Channels this wide, as a fraction of the pitch, leave no island (``inf`` for ``custom``).
+    max_width_text
+        That bound as an error message names it.
+    """
+
+    name: str
+    strips: Callable[[float, float, float], list] | None
+    max_width_fraction: float
+    max_width_text: str
+
+    @property
+    def parametric(self) -> bool:
+        return self.strips is not None
+
+
+#: The layout families, by ``pattern``: the one table the design's checks, the lattice builder, the CLI's
+#: choices and the optimizer's categories read.
+FAMILIES: dict[str, Family] = {f.name: f for f in (
+    Family("square", _square_strips, 1.0, "pitch_mm"),
+    Family("hexagonal", _hexagonal_strips, 1.0, "pitch_mm"),
+    Family("triangular", _triangular_strips, 2.0 / 3.0, "2/3 pitch_mm (triangular islands vanish there)"),
+    Family("diagonal", _diagonal_strips, 1.0, "pitch_mm"),
+    Family("custom", None, math.inf, ""),
+)}
+PARAMETRIC = tuple(n for n, f in FAMILIES.items() if f.parametric)
+PATTERNS = tuple(FAMILIES)
+#: Channels wider than this fraction of the pitch leave no island (derived from :data:`FAMILIES`).
+MAX_WIDTH_FRACTION = {n: f.max_width_fraction for n, f in FAMILIES.items() if f.parametric}
 
 
 def parametric_footprint(pattern: str, size_mm: float, width_mm: float, pitch_mm: float, rim: str,

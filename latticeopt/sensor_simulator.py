@@ -111,7 +111,7 @@ class SensorSimulator:
             return out
         import contextlib
 
-        from .study.execution import run_tasks
+        from .execution import run_tasks
 
         tasks = ((i, (self.model, s[i:i + chunk])) for i in range(0, len(s), chunk))
         workers = min(jobs, -(-len(s) // chunk))

@@ -8,7 +8,7 @@ import time
 
 import pytest
 
-from latticeopt.study.execution import run_tasks
+from latticeopt.execution import run_tasks
 
 ENV = "LATTICEOPT_TEST_EXECUTION"
 

@@ -8,7 +8,7 @@ import pytest
 
 pytest.importorskip("distributed")
 
-from latticeopt.study.execution import dask_client  # noqa: E402
+from latticeopt.execution import dask_client  # noqa: E402
 
 
 @pytest.fixture

@@ -191,3 +191,23 @@ def test_export_cli_formats(tmp_path, capsys):
     assert main([*argv, "--format", "vtk", "-o", str(tmp_path / "x.npz")]) == 2
     assert "--format" in capsys.readouterr().err
     assert main([*argv, "--format", "eidors", "-o", str(tmp_path / "x.npz")]) == 2
+
+
+
+@pytest.mark.parametrize("name", ["npz", "eidors", "pyeit"])
+def test_export_cli_takes_each_format_suffix_from_the_table(name, tmp_path, capsys):
+    from latticeopt.interop import FORMATS
+
+    suffix = FORMATS[name].suffix
+    other = ".mat" if suffix != ".mat" else ".npz"
+    assert main(["export", "--format", name, "-o", str(tmp_path / f"x{other}")]) == 2  # before any meshing
+    assert f"ending in {suffix}" in capsys.readouterr().err
+    assert not (tmp_path / f"x{other}").exists()
+
+
+def test_export_cli_npz_writes_the_sensor_model(tmp_path):
+    from latticeopt.sensor_model import load_sensor_model
+
+    out = tmp_path / "s.npz"
+    assert main(["export", "--size", "6", "--pixels", "4", "--no-cache", "--format", "npz", "-o", str(out)]) == 0
+    assert load_sensor_model(out).n_pixels == 4

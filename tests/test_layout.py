@@ -146,3 +146,29 @@ def test_shipped_example_layout_is_valid():
     path = Path(__file__).resolve().parents[1] / "studies" / "data" / "ring_layout.geojson"
     d = design_from_table({"layout": str(path)})
     assert np.all(electrode_contact_mm(d.footprint(), d.electrodes()) > 0)
+
+
+def test_a_family_added_to_the_table_is_a_pattern_with_its_channels_and_width_bound(monkeypatch):
+    from latticeopt import layout
+
+    def stripes(size_mm, pitch_mm, h):  # vertical channels only
+        lines = layout.square_lines_mm(size_mm, pitch_mm, "channel")
+        return [shapely.box(a - h, -1, a + h, size_mm + 1) for a in lines]
+
+    monkeypatch.setitem(layout.FAMILIES, "stripes", layout.Family("stripes", stripes, 0.5, "pitch_mm / 2"))
+    design = LatticeDesign(pattern="stripes", width_mm=2.0, rim="channel")
+    square = LatticeDesign(pattern="square", width_mm=2.0, rim="channel")
+    assert 0 < design.hydrogel_area_fraction() < square.hydrogel_area_fraction()
+    with pytest.raises(ParameterError, match=r"width_mm < pitch_mm / 2 = 6.25 mm"):
+        LatticeDesign(pattern="stripes", width_mm=6.25)
+    assert width_for_fraction(design, 0.2).width_mm < 6.25
+
+
+def test_the_pattern_lists_come_from_the_family_table():
+    from latticeopt import layout
+
+    assert layout.PATTERNS == tuple(layout.FAMILIES) and "custom" in layout.PATTERNS
+    assert layout.PARAMETRIC == tuple(n for n in layout.PATTERNS if n != "custom")
+    assert layout.MAX_WIDTH_FRACTION == {n: layout.FAMILIES[n].max_width_fraction for n in layout.PARAMETRIC}
+    with pytest.raises(ParameterError, match="2/3 pitch_mm"):
+        LatticeDesign(pattern="triangular", width_mm=2 / 3 * 12.5)

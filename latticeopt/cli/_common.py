@@ -191,6 +191,7 @@ def physics_from_args(args: argparse.Namespace) -> dict:
     """
     import tomllib
 
+    from ..coupled import PhysicsSettings
     from ..study.settings import PHYSICS_KEYS
 
     out = {}
@@ -205,8 +206,9 @@ def physics_from_args(args: argparse.Namespace) -> dict:
             value = tomllib.loads(f"v = {raw.strip()}")["v"]
         except tomllib.TOMLDecodeError:
             value = raw.strip()  # a bare word (flat, sphere): a string
-        out[key] = PHYSICS_KEYS[key](f"--physics {key}", value)
-    return out
+        out[key] = value
+    resolved = PhysicsSettings.from_dict(out, name="--physics", key_name="--physics {key}")
+    return {k: getattr(resolved, k) for k in out}
 
 
 def physics_overrides(args: argparse.Namespace) -> list[str]:

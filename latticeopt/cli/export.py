@@ -18,6 +18,7 @@ from ._common import (
 
 def register(sub) -> None:
     from ..electrics.forward import DEFAULT_CURRENT_A
+    from ..interop import FORMATS
 
     p = sub.add_parser("export", help="export a design as a sensor-model file for reconstruction",
                        description="Mesh a design, solve its rest state at the background conductivity and write "
@@ -32,27 +33,27 @@ def register(sub) -> None:
     g.add_argument("--current", type=float, default=DEFAULT_CURRENT_A, help="drive current (A); default 1e-3")
     g.add_argument("--pixels", type=int, default=48, help="pixels per side of the image grid; default 48")
     p.add_argument("--format", default="npz",
-                   help="npz (latticeopt's sensor model, default), eidors (MATLAB .mat fwd_model for EIDORS) or "
-                        "pyeit (.npz of PyEITMesh and PyEITProtocol fields); formats: docs/sensor_model.md")
-    p.add_argument("-o", "--output", required=True, help="output file: .npz (npz, pyeit) or .mat (eidors)")
+                   help="; ".join(f"{f.name}: {f.description}, {f.suffix}" for f in FORMATS.values()) +
+                        " (default npz); formats: docs/sensor_model.md")
+    p.add_argument("-o", "--output", required=True, help="output file, with the format's suffix")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=run_export)
 
 
 def run_export(args) -> int:
-    from ..interop import FORMATS, write_eidors_mat, write_pyeit_npz
-    from ..sensor_model import build_sensor_model, save_sensor_model
+    from ..interop import FORMATS
+    from ..sensor_model import build_sensor_model
 
     if args.format not in FORMATS:
         raise ParameterError("--format", "one of " + ", ".join(FORMATS), args.format)
-    out = check_output_path("-o", args.output, suffixes=(".mat",) if args.format == "eidors" else (".npz",))
+    fmt = FORMATS[args.format]
+    out = check_output_path("-o", args.output, suffixes=(fmt.suffix,))
     check_mesh_args(args)
     t0 = time.perf_counter()
     cache = False if args.no_cache else args.cache_dir
     model = build_sensor_model(design_from_args(args), mesh_settings_from_args(args), args.sigma,
                                args.contact_impedance, args.pixels, args.current, cache)
-    writer = {"npz": save_sensor_model, "eidors": write_eidors_mat, "pyeit": write_pyeit_npz}[args.format]
-    writer(model, out)
+    fmt.writer(model, out)
     info = {**model.summary(), "format": args.format, "output": str(out), "seconds": time.perf_counter() - t0}
     if args.json:
         emit_json(info)

@@ -36,15 +36,17 @@ def register(sub) -> None:
                    help="model evaluating one phantom (same as --set model=...; default "
                         "latticeopt.coupled:evaluate_phantom)")
     p.add_argument("--retry-failed", action="store_true", help="re-run phantoms stored as failed")
-    p.add_argument("--dry-run", action="store_true", help="validate the study, print what would run, and stop")
+    p.add_argument("--dry-run", action="store_true",
+                   help="validate the study, print what would run and an estimated wall time, and stop")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run_sweep_command)
 
 
 def run_sweep_command(args: argparse.Namespace) -> int:
     from ..study.config import load_study
-    from ..study.settings import coarse_level_settings
+    from ..study.estimators import estimator_for
     from ..study.sweep import run_sweep
+    from ..study.walltime import wall_time
 
     check_study_file(args.study)
     study = load_study(args.study, study_overrides(args) + physics_overrides(args))
@@ -55,18 +57,12 @@ def run_sweep_command(args: argparse.Namespace) -> int:
         print(f"{study.name} ({study.kind}): {len(study.designs)} designs x {len(study.phantoms)} phantoms = "
               f"{study.n_tasks} evaluations, {stored[study.settings.key]} stored; model {study.settings.model}; "
               f"mesh {study.settings.mesh.mesher} {study.settings.mesh.size_mm:g} mm; out {study.out_dir}")
-        if study.multilevel is not None:
-            ml = study.multilevel
-            coarse = coarse_level_settings(study.settings, ml)
-            extra = "".join(f", {k} = {v}" for k, v in ml.coarse_physics)
-            print(f"two-level: every phantom also with the mechanics on the coarse mesh {ml.coarse.size_mm:g} mm "
-                  f"(electrics on the {ml.coarse_electrics} mesh{extra}; {stored[coarse.key]} of {study.n_tasks} "
-                  f"stored), the fine level on a pilot of {ml.pilot} and more until SE <= {ml.se_factor:g} x the "
-                  "plain fine SE (counted above: the fine level if every phantom were run)")
-        if study.adaptive is not None:
-            ad = study.adaptive
-            print(f"adaptive: each design runs {ad.min_per_design} phantoms, then {ad.batch_size} more at a time "
-                  f"until the SE of its mean V_rel <= {ad.target_se:g} (counted above: every phantom, the maximum)")
+        estimator = estimator_for(study)
+        for line in estimator.describe(study.settings, stored):
+            print(line)
+        tasks = [(d.content_hash(), p.key) for d, p in study.tasks()]
+        print(wall_time(estimator.levels(study.settings), tasks, study.out_dir,
+                        study.jobs if args.jobs is None else args.jobs).line())
         return 0
     result = run_sweep(study, jobs=args.jobs, backend=args.backend, scheduler=args.scheduler,
                        progress=not args.no_progress, retry_failed=args.retry_failed)

@@ -178,7 +178,7 @@ def _run_parallel(blocks, results, bar, workers: int, args) -> None:
     """Blocks in worker processes (each rebuilds the forward model once per block)."""
     import contextlib
 
-    from ..study.execution import run_tasks
+    from ..execution import run_tasks
 
     model, seed, pool, gcfg, mcfg = args
     tasks = ((b, (model, k, seed, pool, gcfg, mcfg)) for b, k in enumerate(blocks))

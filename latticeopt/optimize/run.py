@@ -58,7 +58,7 @@ def assess_design(design: LatticeDesign, *, phantoms: Sequence[Phantom], probes:
     the probes' stored voltages are reconstructed with the design's Jacobian from ``images`` (a per-run cache;
     ``None`` builds it afresh), :mod:`latticeopt.study.imaging`.
     """
-    from ..study.sweep import evaluate_designs
+    from ..study.engine import evaluate_designs
 
     t0 = time.perf_counter()
     evs, computed = evaluate_designs([design], list(phantoms) + list(probes), settings, out_dir, evaluate,
@@ -115,7 +115,7 @@ class OptimizationResult:
 @contextlib.contextmanager
 def _dask_client(scheduler, jobs: int):
     """A ``distributed.Client``: the given one, one connected to an address, or one on a local cluster of ``jobs``
-    single-threaded worker processes (as :mod:`latticeopt.study.execution` starts them)."""
+    single-threaded worker processes (as :mod:`latticeopt.execution` starts them)."""
     if scheduler is not None and not isinstance(scheduler, str):
         yield scheduler
         return
@@ -157,7 +157,7 @@ def run_optimization(opt: Optimization, evaluate: Callable | None = None, *, job
     callback
         Called with every :class:`Step`.
     """
-    from ..study.sweep import resolve_model
+    from ..study.engine import resolve_model
 
     t0 = time.perf_counter()
     study = opt.study

@@ -6,7 +6,9 @@ The physics core (:mod:`latticeopt.design`, :mod:`latticeopt.mesh`, :mod:`lattic
 - :mod:`.config`: study TOML files, validated into a frozen :class:`~.config.Study`, and the evaluation
   settings whose hash keys the store;
 - :mod:`.phantoms`: seeded random phantoms and press series;
-- :mod:`.sweep`: runs every design x phantom of a study, resumable, in parallel (:mod:`.execution`);
+- :mod:`.sweep`: runs a study through its estimator (:mod:`.estimators`: plain, two-level, adaptive), which
+  evaluates through :mod:`.engine` (resumable, in parallel on :mod:`latticeopt.execution`);
+  :mod:`.walltime` estimates how long that takes;
 - :mod:`.store`: the SQLite results store and the output-folder lock;
 - :mod:`.report`: summaries, CSV files and plots of a finished sweep;
 - :mod:`.objectives`: design scores for the optimizer;

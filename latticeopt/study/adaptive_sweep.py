@@ -16,7 +16,7 @@ the prefix is near-proportional per touch count it is, if anything, slightly lar
 
 Failures follow the plain sweep's rule: a phantom that any compared design (one with at least one success, or
 none run yet) failed is left out for every design; the order is filtered, so a prefix that now reaches a phantom a
-design has not run makes that design run it. Everything goes through :func:`~latticeopt.study.sweep.evaluate_designs`
+design has not run makes that design run it. Everything goes through :func:`~latticeopt.study.engine.evaluate_designs`
 into the one store under the study's settings key, so an interrupted run started again reads every stored row,
 makes the same decisions from the same numbers and computes only what is missing; the rows are also exactly
 those a plain sweep of the same study would reuse.
@@ -31,8 +31,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .config import Study
+from .engine import run_prefixes
 from .multilevel import fine_order
-from .multilevel_sweep import run_prefixes
 from .report import mean_se
 from .settings import AdaptiveSettings, EvalSettings
 from .store import Evaluation
@@ -134,7 +134,7 @@ def run_adaptive(study: Study, settings: EvalSettings, out_dir, evaluate: Callab
     settings
         The settings (the study's, with the model :func:`~.sweep.run_sweep` resolved).
     out_dir, evaluate, jobs, backend, scheduler, progress, retry_failed
-        As in :func:`latticeopt.study.sweep.evaluate_designs`.
+        As in :func:`latticeopt.study.engine.evaluate_designs`.
     """
     ad = study.adaptive
     run = dict(evaluate=evaluate, jobs=jobs, backend=backend, scheduler=scheduler, progress=progress,
@@ -157,7 +157,7 @@ def run_adaptive(study: Study, settings: EvalSettings, out_dir, evaluate: Callab
                 want[i] = nxt
         if not want:
             break
-        computed += run_prefixes(study, want, order, settings, out_dir, evals, n, run,
+        computed += run_prefixes(study.designs, study.phantoms, want, order, settings, out_dir, evals, n, run,
                                  label=lambda m: f"{study.name} ({m} phantoms)")
         log.info("%s: phantoms per design %s", study.name, sorted({n[i] for i in compared}))
     compared, order = _state(nd, full, evals)

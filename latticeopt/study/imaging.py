@@ -118,11 +118,10 @@ def build_reconstructor(design: LatticeDesign, settings: EvalSettings, prior: st
         ``model.v_ref`` equals :class:`~latticeopt.coupled.CoupledModel` ``reference_voltages`` of the same
         design and settings (module docstring).
     """
-    from ..coupled import PhysicsSettings
     from ..recon.classical import LinearReconstructor
     from ..sensor_model import build_sensor_model
 
-    phys = PhysicsSettings.from_dict(settings.physics)
+    phys = settings.physics_settings
     model = build_sensor_model(design, settings.mesh, sigma_S_per_m=phys.sigma_S_per_m,
                                contact_impedance_ohm_m2=phys.contact_impedance_ohm_m2, current_A=phys.current_A,
                                cache_dir=settings.cache_dir)

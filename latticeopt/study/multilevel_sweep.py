@@ -13,7 +13,7 @@ store. Steps:
    (:func:`~latticeopt.study.multilevel.next_fine_count`) until the two-level SE is within ``se_factor`` of the
    estimated plain fine SE or every phantom is fine. Designs asking for the same prefix are evaluated together.
 
-Both levels go through :func:`~latticeopt.study.sweep.evaluate_designs` into the one store, each under its own
+Both levels go through :func:`~latticeopt.study.engine.evaluate_designs` into the one store, each under its own
 settings key (the key hashes the mesh): an interrupted run started again reads everything stored, makes the
 same decisions from the same numbers and computes only what is missing. Failures follow the plain sweep's rule:
 a phantom that any compared design failed, at either level, is left out for every design (at both levels); the
@@ -31,6 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .config import Study
+from .engine import evaluate_designs, run_prefixes
 from .multilevel import MultilevelEstimate, fine_order, multilevel_estimate, next_fine_count
 from .settings import EvalSettings, coarse_level_settings
 from .store import Evaluation
@@ -95,30 +96,6 @@ def _arrays(study, coarse, fine, used, order, i, n):
     return c, f, strata
 
 
-def run_prefixes(study: Study, want: dict, order, settings: EvalSettings, out_dir, into: dict, n, run: dict,
-                 label: Callable[[int], str]) -> int:
-    """Evaluate design ``i`` on the first ``want[i]`` phantoms of ``order`` for every ``i`` in ``want``.
-
-    Designs asking for the same prefix run together (one :func:`~.sweep.evaluate_designs` call: phantoms
-    already stored are read, the rest computed). Each evaluation goes to ``into[(i, j)]`` (design index, phantom
-    index) and the prefix length to ``n[i]``; ``run`` holds the executor arguments of ``evaluate_designs`` and
-    ``label(m)`` names the progress bar of an ``m``-phantom prefix. Returns how many evaluations were computed.
-    """
-    from .sweep import evaluate_designs  # sweep dispatches here: import at call time
-
-    computed = 0
-    for m in sorted(set(want.values())):
-        group = [i for i in want if want[i] == m]
-        rows, done = evaluate_designs([study.designs[i] for i in group], [study.phantoms[j] for j in order[:m]],
-                                      settings, out_dir, label=label(m), **run)
-        computed += done
-        for g, i in enumerate(group):
-            for k, j in enumerate(order[:m]):
-                into[(i, j)] = rows[g * m + k]
-            n[i] = m
-    return computed
-
-
 def run_multilevel(study: Study, settings: EvalSettings, out_dir, evaluate: Callable, *, jobs: int = 1,
                    backend: str = "local", scheduler=None, progress: bool = False,
                    retry_failed: bool = False) -> MultilevelRun:
@@ -131,10 +108,8 @@ def run_multilevel(study: Study, settings: EvalSettings, out_dir, evaluate: Call
     settings
         The fine level's settings (the study's, with the model :func:`~.sweep.run_sweep` resolved).
     out_dir, evaluate, jobs, backend, scheduler, progress, retry_failed
-        As in :func:`latticeopt.study.sweep.evaluate_designs`.
+        As in :func:`latticeopt.study.engine.evaluate_designs`.
     """
-    from .sweep import evaluate_designs  # sweep dispatches here: import at call time
-
     ml = study.multilevel
     coarse_settings = coarse_level_settings(settings, ml)
     run = dict(evaluate=evaluate, jobs=jobs, backend=backend, scheduler=scheduler, progress=progress,
@@ -165,7 +140,7 @@ def run_multilevel(study: Study, settings: EvalSettings, out_dir, evaluate: Call
                 want[i] = nxt
         if not want:
             break
-        computed_fine += run_prefixes(study, want, order, settings, out_dir, fine, n, run,
+        computed_fine += run_prefixes(study.designs, study.phantoms, want, order, settings, out_dir, fine, n, run,
                                       label=lambda m: f"{study.name} (fine, {m} phantoms)")
         log.info("%s: fine phantoms per design %s", study.name, sorted(set(n.values())))
     estimates: list[MultilevelEstimate | None] = [None] * nd

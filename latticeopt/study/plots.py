@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from ..mesh import MeshSettings
+from ._rows import _by_design, _label, _value
 from .config import Study
-from .report import _by_design, _label, _value
 from .store import Evaluation
 
 __all__ = ["plot_heatmap", "plot_lines", "plot_press"]

@@ -33,6 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ._rows import _by_design, _fmt, _value
 from .config import Study
 from .store import Evaluation
 
@@ -47,11 +48,6 @@ def mean_se(values: Sequence[float]) -> tuple[float, float]:
         return math.nan, math.nan
     se = float(np.std(x, ddof=1) / math.sqrt(x.size)) if x.size > 1 else math.nan
     return float(np.mean(x)), se
-
-
-def _by_design(study: Study, evaluations: Sequence[Evaluation]) -> list[list[Evaluation]]:
-    n = len(study.phantoms)
-    return [list(evaluations[i * n:(i + 1) * n]) for i in range(len(study.designs))]
 
 
 def _first_line(text: str | None) -> str:
@@ -161,27 +157,6 @@ def write_csv(path: Path, rows: Sequence[dict]) -> Path:
     return path
 
 
-def _value(design, field: str):
-    """A design's value of a study grid key: a field, the hydrogel fraction it was solved for, or (for a layout
-    file) its content hash."""
-    if field == "hydrogel_fraction":
-        return round(design.hydrogel_area_fraction(), 6)
-    if field == "layout":
-        return design.content_hash()[:8]
-    return getattr(design, field)
-
-
-def _label(design, fields) -> str:
-    parts = []
-    for f in fields:
-        val = _value(design, f)
-        if f.endswith("_mm"):
-            parts.append(f"{f.removesuffix('_mm')} = {val:g} mm")
-        else:
-            parts.append(f"{f} = {val:g}" if isinstance(val, float) else f"{f} = {val}")
-    return ", ".join(parts)
-
-
 # -- press studies -----------------------------------------------------------------------------------------
 def press_curves(study: Study, evaluations: Sequence[Evaluation]) -> list[dict]:
     """Rows ``(grid fields, depth_mm, v_rel, force_N, status)`` per design and depth."""
@@ -213,10 +188,6 @@ def press_ratios(study: Study, evaluations: Sequence[Evaluation]) -> list[dict]:
 
 
 # -- everything at once --------------------------------------------------------------------------------------
-def _fmt(design, fields) -> str:
-    return _label(design, fields) or design.describe()
-
-
 #: Excluded phantoms listed in ``report.txt`` (and so printed by the CLI); ``excluded.csv`` has them all.
 _LISTED = 10
 

@@ -1,7 +1,8 @@
 """Evaluation settings: everything besides design and phantom that determines a result, and its hash.
 
-:data:`PHYSICS_KEYS` is the ``[physics]`` schema, derived from :class:`latticeopt.coupled.PhysicsSettings`;
-:class:`EvalSettings` bundles mesh settings, the physics table and the model function, and its :attr:`~EvalSettings.key`
+:data:`PHYSICS_KEYS` are the ``[physics]`` keys, the fields of :class:`latticeopt.coupled.PhysicsSettings`;
+:class:`EvalSettings` bundles mesh settings, the physics table (validated once into PhysicsSettings) and the
+model function, and its :attr:`~EvalSettings.key`
 (SHA-256 of every resolved setting and the package version) keys the results store.
 """
 
@@ -10,7 +11,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 from .. import _validate as v
@@ -34,43 +35,29 @@ def _physics_settings():
     return PhysicsSettings
 
 
-def _physics_value(key: str, name: str, value: object) -> object:
-    """``value`` of ``[physics]`` key ``key`` as :class:`~latticeopt.coupled.PhysicsSettings` cleans it; a bad
-    value is reported under ``name`` with PhysicsSettings' own allowed values."""
-    try:
-        return getattr(_physics_settings()(**{key: value}), key)
-    except ParameterError as exc:
-        raise ParameterError(name, exc.expected, value) from None
+class _PhysicsKeys(Sequence):
+    """The field names of :class:`latticeopt.coupled.PhysicsSettings`, read when first used.
 
-
-class _PhysicsKeys(Mapping):
-    """``key -> checker(name, value)`` for every field of :class:`latticeopt.coupled.PhysicsSettings`.
-
-    The schema is PhysicsSettings itself (fields, defaults and ranges in its ``__post_init__``): a value is
-    checked by constructing PhysicsSettings with it, so the study file, ``--set physics.KEY`` and
-    ``--physics KEY=VALUE`` accept exactly what the model accepts.
+    The schema is PhysicsSettings itself (fields, defaults and ranges in its ``__post_init__``): a table is
+    checked once, by :meth:`PhysicsSettings.from_dict <latticeopt.coupled.PhysicsSettings.from_dict>`, so the
+    study file, ``--set physics.KEY`` and ``--physics KEY=VALUE`` accept exactly what the model accepts.
     """
 
     def _names(self) -> tuple[str, ...]:
         return tuple(f.name for f in dataclasses.fields(_physics_settings()))
 
-    def __getitem__(self, key: str) -> Callable[[str, object], object]:
-        if key not in self._names():
-            raise KeyError(key)
-        return lambda name, value: _physics_value(key, name, value)
-
-    def __iter__(self):
-        return iter(self._names())
+    def __getitem__(self, index):
+        return self._names()[index]
 
     def __len__(self) -> int:
         return len(self._names())
 
 
-#: The keys a study's ``[physics]`` table accepts, each with its checker ``(name, value) -> clean value``:
-#: the fields of :class:`latticeopt.coupled.PhysicsSettings`, validated by it (declare a new model setting
-#: there). The table is passed to the model as a dict (:attr:`EvalSettings.physics`); the model applies its own
-#: defaults for keys a study leaves out.
-PHYSICS_KEYS: Mapping[str, Callable[[str, object], object]] = _PhysicsKeys()
+#: The keys a study's ``[physics]`` table accepts: the fields of :class:`latticeopt.coupled.PhysicsSettings`
+#: (declare a new model setting there). The coupled model takes the validated table
+#: (:attr:`EvalSettings.physics_settings`); a custom model reads the keys the study set as a dict
+#: (:attr:`EvalSettings.physics`) and applies its own defaults.
+PHYSICS_KEYS: Sequence[str] = _PhysicsKeys()
 
 
 # -- settings handed to the model --------------------------------------------------------------------------
@@ -83,7 +70,8 @@ class EvalSettings:
     mesh
         How each design is meshed.
     physics_items
-        The ``[physics]`` table as sorted ``(key, value)`` pairs (read it as the dict :attr:`physics`).
+        The ``[physics]`` table as sorted ``(key, value)`` pairs (read it as the dict :attr:`physics`), checked
+        once here into :attr:`physics_settings`.
     model
         ``"module:function"`` of the evaluation function; part of the key, so results of different
         models never mix in a store.
@@ -107,20 +95,25 @@ class EvalSettings:
             raise ParameterError("mesh", "a MeshSettings", self.mesh)
         if self.mechanics_mesh is not None and not isinstance(self.mechanics_mesh, MeshSettings):
             raise ParameterError("mechanics_mesh", "a MeshSettings or None", self.mechanics_mesh)
-        items = dict(self.physics_items)
-        for k, val in items.items():
-            if k not in PHYSICS_KEYS:
-                raise ParameterError("physics", "keys among " + ", ".join(PHYSICS_KEYS), k)
-            items[k] = PHYSICS_KEYS[k](f"physics.{k}", val)
-        object.__setattr__(self, "physics_items", tuple(sorted(items.items())))
+        given = dict(self.physics_items)
+        # the one check of the table; the model and the key use what it returns (physics_settings)
+        resolved = _physics_settings().from_dict(given, key_name="physics.{key}")
+        object.__setattr__(self, "_physics_settings", resolved)
+        object.__setattr__(self, "physics_items", tuple(sorted((k, getattr(resolved, k)) for k in given)))
         module, sep, func = str(self.model).partition(":")
         if not (sep and module and func):
             raise ParameterError("model", "'module:function', e.g. " + repr(DEFAULT_MODEL), self.model)
 
     @property
     def physics(self) -> dict:
-        """The ``[physics]`` settings as a fresh dict (key -> value)."""
+        """The ``[physics]`` keys the study set, as a fresh dict (key -> value; what a custom model reads)."""
         return dict(self.physics_items)
+
+    @property
+    def physics_settings(self):
+        """The ``[physics]`` table validated, every default filled in: a
+        :class:`latticeopt.coupled.PhysicsSettings` (what the coupled model takes)."""
+        return self._physics_settings
 
     def as_dict(self) -> dict:
         """The identity-relevant content (everything but :attr:`cache_dir`), every default resolved.
@@ -145,15 +138,8 @@ class EvalSettings:
         from .. import __version__  # read at call time: the installed package's version
 
         physics: dict = self.physics
-        if self.model == DEFAULT_MODEL:
-            # imported here, not at module level: the coupled model pulls in the solvers, and only the default
-            # model's settings are known to be PhysicsSettings
-            from ..coupled import PhysicsSettings
-
-            try:
-                resolved = PhysicsSettings.from_dict(physics)
-            except ParameterError as exc:  # a combination PHYSICS_KEYS's per-key checks cannot see
-                raise ParameterError(f"physics.{exc.name}", exc.expected, exc.got) from None
+        if self.model == DEFAULT_MODEL:  # only the default model's settings are known to be PhysicsSettings
+            resolved = self.physics_settings
             physics = {**resolved.as_dict(), "indent": resolved.indent_settings().as_dict()}
         out = {"mesh": self.mesh.identity(), "physics": physics, "model": self.model, "version": __version__}
         if self.mechanics_mesh is not None:
@@ -214,11 +200,8 @@ class MultilevelSettings:
             items = dict(given.items() if isinstance(given, Mapping) else given)
         except (TypeError, ValueError):
             raise ParameterError("coarse_physics", "a [physics] table, e.g. { mechanics_rtol = 0.01 }", given) from None
-        for k, val in items.items():
-            if k not in PHYSICS_KEYS:
-                raise ParameterError("coarse_physics", "keys among " + ", ".join(PHYSICS_KEYS), k)
-            items[k] = PHYSICS_KEYS[k](f"coarse_physics.{k}", val)
-        object.__setattr__(self, "coarse_physics", tuple(sorted(items.items())))
+        resolved = _physics_settings().from_dict(items, name="coarse_physics", key_name="coarse_physics.{key}")
+        object.__setattr__(self, "coarse_physics", tuple(sorted((k, getattr(resolved, k)) for k in items)))
         if isinstance(self.pilot, bool) or not isinstance(self.pilot, int) or self.pilot < 2:
             raise ParameterError("pilot", "an integer >= 2 (fine phantoms run first)", self.pilot)
         ok = isinstance(self.se_factor, (int, float)) and not isinstance(self.se_factor, bool)

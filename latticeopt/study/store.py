@@ -256,6 +256,11 @@ class ResultStore:
             sql += " AND status = 'ok'"
         return {tuple(r) for r in self._db.execute(sql, args)}
 
+    def seconds(self, settings_key: str) -> dict[tuple[str, str], float]:
+        """``(design_key, phantom_key) -> seconds`` of every row under one settings key (ok and failed)."""
+        sql = "SELECT design_key, phantom_key, seconds FROM evaluations WHERE settings_key = ?"
+        return {(d, p): float(t) for d, p, t in self._db.execute(sql, (settings_key,)) if t is not None}
+
     def get(self, design_key: str, phantom_key: str, settings_key: str) -> Evaluation | None:
         """The evaluation with these keys, or ``None``."""
         row = self._db.execute("SELECT * FROM evaluations WHERE design_key = ? AND phantom_key = ? AND "

@@ -20,7 +20,7 @@ import numpy as np
 
 from .._jsonout import jsonable
 from ..errors import LatticeoptError, ModelFailure
-from .execution import blas_threads
+from ..execution import blas_threads
 from .settings import EvalSettings
 from .store import Evaluation
 
