@@ -104,7 +104,7 @@ def test_a_read_only_folder_is_rejected(files, tmp_path):
 def test_good_outputs_reach_the_work(files, tmp_path):
     _accepted(["mesh", "-o", tmp_path / "m.vtu", "--cache-dir", tmp_path / "new" / "cache"], files)
     _accepted(["simulate", "--touch", "50,50,8.75,2", "--touch", "20,20,5,1"], files)
-    _accepted(["reconstruct", "--model", files.sensor, "--touch", "50,50,10,0.5", "-o", tmp_path / "r.png",
+    _accepted(["reconstruct", "--model", files.sensor, "--disc", "50,50,10,0.5", "-o", tmp_path / "r.png",
                "--snr-db", "40"], files)
     _accepted(["sweep", files.study, "--out", tmp_path / "runs" / "s"], files)
     _accepted(["sweep", files.study, "--out", tmp_path / "runs" / "s", "--dry-run"], files)
@@ -144,14 +144,23 @@ def test_physics_settings_reject_zero_contact_impedance():
 
 @pytest.mark.parametrize("touch", ["nan,50,10,0.5", "150,50,10,0.5", "50,-1,10,0.5", "50,50,inf,0.5",
                                    "50,50,1e9,0.5", "50,50,10,inf", "50,50,10,0", "50,50,-3,0.5", "50,50,10"])
-def test_reconstruct_touch_values(touch, files):
-    _rejected(["reconstruct", "--model", files.sensor, "--touch", touch, "-o", "x.png"], files, "--touch")
+def test_reconstruct_disc_values(touch, files):
+    _rejected(["reconstruct", "--model", files.sensor, "--disc", touch, "-o", "x.png"], files, "--disc")
+
+
+def test_reconstruct_touch_names_the_disc_flag(files, tmp_path):
+    # --touch is X,Y,R,D (a press) everywhere else; in reconstruct it once meant a disc X,Y,DIAMETER,RATIO
+    line = _rejected(["reconstruct", "--model", files.sensor, "--touch", "50,50,8.75,4", "-o", tmp_path / "r.png"],
+                     files, "--touch", "--disc X,Y,DIAMETER,RATIO", "50,50,8.75,4")
+    assert line.startswith("latticeopt reconstruct: error: --touch")
+    assert not (tmp_path / "r.png").exists()
+    _accepted(["reconstruct", "--model", files.sensor, "--disc", "50,50,8.75,4", "-o", tmp_path / "r.png"], files)
 
 
 @pytest.mark.parametrize("flag, value", [("--snr-db", "nan"), ("--snr-db", "-1000"), ("--seed", "-1"),
                                          ("--max-frames", "0"), ("--prior", "x")])
 def test_reconstruct_numbers(flag, value, files):
-    _rejected(["reconstruct", "--model", files.sensor, "--touch", "50,50,10,0.5", "-o", "x.png", f"{flag}={value}"],
+    _rejected(["reconstruct", "--model", files.sensor, "--disc", "50,50,10,0.5", "-o", "x.png", f"{flag}={value}"],
               files, flag)
 
 
