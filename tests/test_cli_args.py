@@ -193,6 +193,41 @@ def test_recon_eval_arguments(files):
     _rejected(["recon-eval", "--model", files.sensor, "--dataset", files.root / "missing.npz"], files, "--dataset")
 
 
+@pytest.mark.parametrize("argv, module, flag", [
+    (["recon-train", "--model", "{sensor}", "-o", "{tmp}/n.npz", "--per-count", "6", "--dataset", "{tmp}/d.npz"],
+     "torch", "PyTorch"),
+    (["recon-train", "--model", "{sensor}", "-o", "{tmp}/n.npz", "--per-count", "6"], "skimage", "scikit-image"),
+    (["recon-eval", "--model", "{sensor}", "--dataset", "{dataset}", "--methods", "tikhonov", "--figure",
+      "{tmp}/e.png"], "skimage", "scikit-image"),
+    (["recon-eval", "--model", "{sensor}", "--dataset", "{dataset}", "--methods", "tikhonov,dnn"], "torch",
+     "--methods dnn"),
+    (["reconstruct", "--model", "{sensor}", "--frames", "{frames}", "--method", "dnn", "-o", "{tmp}/r.png"], "torch",
+     "--method dnn"),
+    (["classify-train", "--model", "{sensor}", "--out", "{tmp}/g"], "torch", "PyTorch"),
+    (["sweep", "{study}", "--backend", "dask", "--out", "{tmp}/run"], "distributed", "--backend dask"),
+    (["sweep", "{study}", "--backend", "dask", "--out", "{tmp}/run", "--dry-run"], "distributed", "--backend dask"),
+    (["optimize", "{opt_study}", "--backend", "dask", "--out", "{tmp}/run"], "distributed", "--backend dask"),
+])
+def test_a_missing_extra_fails_before_any_work(argv, module, flag, files, tmp_path, monkeypatch):
+    """sys.modules[name] = None makes `import name` fail as if the package were not installed. Reaching a stage
+    (dataset simulation, training, sweep: patched to raise) would be "accepted", not one line and exit 2."""
+    import sys
+
+    from test_cli_fuzz import _import_everything
+
+    from latticeopt._extras import install_command
+
+    _import_everything()  # with every package present, so that only the commands' own check meets the gap
+    monkeypatch.setitem(sys.modules, module, None)
+    extra = "distributed" if module == "distributed" else "learn"
+    monkeypatch.chdir(files.root)  # where run_cli runs the command: the clone's path, not "."
+    names = {"sensor": files.sensor, "dataset": files.dataset, "frames": files.frames, "study": files.study,
+             "opt_study": files.opt_study, "tmp": tmp_path}
+    line = _rejected([a.format(**names) for a in argv], files, flag, "is not installed", install_command(extra))
+    assert line.startswith(f"latticeopt {argv[0]}: error: ")
+    assert list(tmp_path.iterdir()) == []  # no run folder, dataset, network or figure
+
+
 def test_classify_train_snr(files):
     pytest.importorskip("torch")
     _rejected(["classify-train", "--model", files.sensor, "--snr", "-1000", "-999"], files, "--snr")

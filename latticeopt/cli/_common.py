@@ -167,11 +167,17 @@ def study_overrides(args: argparse.Namespace) -> list[str]:
 
 
 def check_parallel_args(args: argparse.Namespace) -> None:
-    """Reject ``--jobs < 1`` and a ``--scheduler`` without ``--backend dask`` before any work."""
+    """Reject ``--jobs < 1``, a ``--scheduler`` without ``--backend dask`` and ``--backend dask`` without
+    dask.distributed installed, before any work (``--dry-run`` included)."""
+    from .._extras import require_extra
+
     if args.jobs is not None and args.jobs < 1:
         raise ParameterError("--jobs", "an integer >= 1", args.jobs)
     if args.scheduler is not None and args.backend != "dask":
         raise ParameterError("--scheduler", "no scheduler unless --backend dask", args.scheduler)
+    if args.backend == "dask":
+        require_extra("distributed", "it runs the phantoms on a dask cluster; or use --backend local",
+                      name="--backend dask")
 
 
 # -- [physics] keys from the command line ------------------------------------------------------------------

@@ -95,6 +95,10 @@ def run_reconstruct(args) -> int:
                              "(--touch is X,Y,R,D, a press of radius R and depth D, in simulate and indent)",
                              args.touch[0])
     method = v.choice("--method", args.method, ("tikhonov", "gn", "dnn"))
+    if method == "dnn":
+        from .._extras import require_extra
+
+        require_extra("learn", "method dnn runs the network with it", name="--method dnn", modules=("torch",))
     png = check_output_path("-o", args.output, suffixes=(".png",))
     npy = check_output_path("--save-images", args.save_images, suffixes=(".npy",))
     lam = _lam(args.lam)
