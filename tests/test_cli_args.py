@@ -258,7 +258,8 @@ def test_mesh_width_below_the_smallest_channel(files):
 
 def test_mesh_options_named_by_flag(files):
     _rejected(["mesh", "--layer-cells", "0"], files, "--layer-cells")
-    _rejected(["mesh", "--size", "nan"], files, "--size")
+    _rejected(["mesh", "--size", "nan"], files, "--mesh-size")  # the old name: the error names the flag
+    _rejected(["mesh", "--mesh-size", "nan"], files, "--mesh-size")
     _rejected(["mesh", "--channel-cells", "0"], files, "--channel-cells", "'auto'")
     outcome, status, err = run_cli(["mesh", "--channel-cells", "many"], files.root)  # argparse's own type check
     assert (outcome, status) == ("argparse", 2) and len(err.splitlines()) == 1

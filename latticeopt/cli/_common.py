@@ -27,7 +27,8 @@ _DESIGN_ARGS = [
     ("--pattern", "pattern", str, f"layout family ({', '.join(PATTERNS)}; custom comes from --layout)"),
     ("--rim", "rim", str, f"hydrogel channel round the rim ({', '.join(RIMS)})"),
     ("--frame", "frame_mm", float, "silicone border round the lattice (mm); leads cross it to the electrodes"),
-    ("--sensor-size", "size_mm", float, "sensor side L (mm)"),
+    ("--sensor-size", "size_mm", float, "sensor side L (mm; design.size_mm in a study), not the mesh element size "
+     "(--mesh-size)"),
     ("--total-thickness", "total_thickness_mm", float, "stack thickness H (mm)"),
     ("--sealing", "sealing_mm", float, "sealing-layer thickness (mm)"),
     ("--electrodes", "n_electrodes", int, "number of electrodes (multiple of 4)"),
@@ -111,8 +112,9 @@ def add_mesh_args(parser: argparse.ArgumentParser) -> None:
     auto = ", ".join([f"{k} {n}" for k, n in CHANNEL_CELLS_AUTO.items()] + [f"else {CHANNEL_CELLS_DEFAULT}"])
     g = parser.add_argument_group("mesh")
     g.add_argument("--mesher", default=None, help=f"one of {', '.join(MESHERS)}; default {d.mesher}")
-    g.add_argument("--size", dest="mesh_size_mm", type=float, default=None,
-                   help=f"target element size (mm); default {d.size_mm}")
+    g.add_argument("--mesh-size", "--size", dest="mesh_size_mm", type=float, default=None,
+                   help=f"mesh element size: the target edge length of the elements (mm; mesh.size_mm in a study), "
+                        f"not the sensor side (--sensor-size); --size is the old name; default {d.size_mm}")
     g.add_argument("--channel-cells", type=_int_or_auto, default=None,
                    help=f"grid and extruded: minimum cells across a channel, or 'auto' (the family's converged "
                         f"count: {auto}); default {d.channel_cells}")
@@ -279,7 +281,7 @@ def check_output_path(flag: str, path, kind: str = "file", suffixes: tuple[str, 
 def check_mesh_args(args: argparse.Namespace) -> None:
     """The mesh options, named by their flags, and ``--cache-dir`` (unless ``--no-cache``: a writable folder or
     one that can be created), before any meshing."""
-    flags = {"mesher": "--mesher", "size_mm": "--size", "channel_cells": "--channel-cells",
+    flags = {"mesher": "--mesher", "size_mm": "--mesh-size", "channel_cells": "--channel-cells",
              "layer_cells": "--layer-cells", "epsilon_rel": "--epsilon"}
     try:
         mesh_settings_from_args(args)
