@@ -311,3 +311,19 @@ def test_documented_classify_example_names_a_file_classify_train_writes():
 def test_huge_sensor_is_rejected_before_the_layout_is_built(size, files):
     _rejected(["render", "--sensor-size", size], files, "--sensor-size", "400 pitches")
     _rejected(["mesh", "--sensor-size", size, "--pitch", "20"], files, "--sensor-size", "8000 mm")
+
+
+def test_forward_simulate_and_export_state_both_conductivity_defaults():
+    from latticeopt.cli import build_parser
+    from latticeopt.electrics import DEFAULT_SIGMA_S_PER_M
+    from latticeopt.sensor_model import SIGMA0_S_PER_M
+
+    commands = next(a for a in build_parser()._actions if a.dest == "command").choices
+    for cmd in ("forward", "simulate", "export"):
+        sigma = next(a for a in commands[cmd]._actions if a.dest == "sigma")
+        own = SIGMA0_S_PER_M if cmd == "export" else DEFAULT_SIGMA_S_PER_M
+        assert sigma.default == own, cmd
+        for value in (SIGMA0_S_PER_M, DEFAULT_SIGMA_S_PER_M):  # its own default and the other's, in S/m
+            assert f"{value:g}" in sigma.help, (cmd, sigma.help)
+        assert "docs/sensor_model.md" in sigma.help and f"{DEFAULT_SIGMA_S_PER_M / SIGMA0_S_PER_M:.0f} times" in \
+            sigma.help

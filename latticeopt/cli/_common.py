@@ -95,6 +95,15 @@ def touches_from_args(args: argparse.Namespace, design: LatticeDesign) -> tuple:
     return validate_touches(design, touches)
 
 
+def sigma_help(default: float) -> str:
+    """``--sigma`` of forward and simulate: their default and how export's differs (one text, two commands)."""
+    from ..sensor_model import SIGMA0_S_PER_M
+
+    return (f"hydrogel conductivity (S/m); default {default:g} (LiCl hydrogels conduct 1-10 S/m). 'export' "
+            f"defaults to the paper's image-model sigma0 = {SIGMA0_S_PER_M:g} S/m instead, with z_c * sigma kept: "
+            f"the same V_rel, voltages {default / SIGMA0_S_PER_M:.0f} times these (docs/sensor_model.md)")
+
+
 def _int_or_auto(text: str) -> int | str:
     """``--channel-cells``: an integer or ``auto`` (the range is MeshSettings' to check)."""
     if text == "auto":

@@ -16,6 +16,7 @@ from ._common import (
     emit_json,
     mesh_settings_from_args,
     physics_from_args,
+    sigma_help,
     touches_from_args,
 )
 
@@ -31,7 +32,7 @@ def register(sub) -> None:
     add_mesh_args(p)
     g = p.add_argument_group("phantom and physics")
     add_touch_args(g)
-    g.add_argument("--sigma", type=float, default=d.sigma_S_per_m, help="hydrogel conductivity (S/m)")
+    g.add_argument("--sigma", type=float, default=d.sigma_S_per_m, help=sigma_help(d.sigma_S_per_m))
     g.add_argument("--contact-impedance", type=float, default=d.contact_impedance_ohm_m2,
                    help="electrode contact impedance (ohm m^2)")
     add_physics_arg(g)
