@@ -190,3 +190,15 @@ def test_help_tells_the_two_sizes_apart(capsys):
     assert code == 0 and "--mesh-size MESH_SIZE_MM, --size MESH_SIZE_MM" in text
     assert "mesh element size" in text and "not the sensor side (--sensor-size)" in text
     assert "not the mesh element size (--mesh-size)" in text
+
+
+def test_mesh_stl_says_what_it_wrote(tmp_path, capsys):
+    folder = tmp_path / "stl"
+    code, out, err = _run(["mesh", "--width", "4", "--thickness", "3", "--mesh-size", "6", "--no-cache", "--stl",
+                           str(folder)], capsys)
+    assert code == 0, err
+    written = sorted(folder.iterdir())
+    assert written and all(p.suffix == ".stl" for p in written)
+    lines = [line for line in out.splitlines() if line.startswith("wrote ")]
+    assert sorted(line.split()[1] for line in lines) == sorted(str(p) for p in written)  # one line per file
+    assert any("hydrogel solid" in line for line in lines)

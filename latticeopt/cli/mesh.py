@@ -69,6 +69,8 @@ def run_mesh(args) -> int:
     print(f"min tet quality (mean ratio): {summary['min_quality']:.3f}")
     if out is not None:
         print(f"wrote {out}")
+    for name, path in summary.get("stl", {}).items():
+        print(f"wrote {path} ({name} solid, mm)")
     return 0
 
 
