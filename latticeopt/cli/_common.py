@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import sys
 from pathlib import Path
@@ -89,10 +90,22 @@ def add_touch_args(group) -> None:
 
 def touches_from_args(args: argparse.Namespace, design: LatticeDesign) -> tuple:
     """The ``--touch`` values, parsed and checked against ``design`` (before any meshing or solving)."""
-    from ..touches import Touch, validate_touches
+    from ..touches import Touch, touch_name, validate_touches
 
-    touches = [Touch.parse(text, name=f"--touch #{i + 1}") for i, text in enumerate(args.touch)]
-    return validate_touches(design, touches)
+    touches = [Touch.parse(text, name=touch_name(i, "--touch")) for i, text in enumerate(args.touch)]
+    return validate_touches(design, touches, name="--touch")
+
+
+@contextlib.contextmanager
+def touches_named_by_flag():
+    """Errors the mechanics raise about ``touch #k`` once it meets the mesh (a contact disc holding no node)
+    name the option: ``--touch #k``, as the checks before any work do."""
+    try:
+        yield
+    except ParameterError as exc:
+        if not exc.name.startswith("touch #"):
+            raise
+        raise ParameterError(f"--{exc.name}", exc.expected, exc.got) from None
 
 
 def sigma_help(default: float) -> str:

@@ -18,6 +18,7 @@ from ._common import (
     physics_from_args,
     sigma_help,
     touches_from_args,
+    touches_named_by_flag,
 )
 
 
@@ -54,7 +55,8 @@ def run_simulate(args) -> int:
     settings = mesh_settings_from_args(args)
     t0 = time.perf_counter()
     model = CoupledModel(design, settings, physics, cache_dir=False if args.no_cache else args.cache_dir)
-    res = model.simulate(touches)
+    with touches_named_by_flag():
+        res = model.simulate(touches)
     out = res.summary()
     out.update({"design": design.as_dict(), "touches": [t.as_dict() for t in touches],
                 "mesh_settings": dataclasses.asdict(settings.resolved(design)), "physics": physics.as_dict(),
