@@ -327,3 +327,52 @@ def test_forward_simulate_and_export_state_both_conductivity_defaults():
             assert f"{value:g}" in sigma.help, (cmd, sigma.help)
         assert "docs/sensor_model.md" in sigma.help and f"{DEFAULT_SIGMA_S_PER_M / SIGMA0_S_PER_M:.0f} times" in \
             sigma.help
+
+
+def _help(cmd: str) -> str:
+    from latticeopt.cli import build_parser
+
+    sub = next(a for a in build_parser()._actions if a.dest == "command").choices[cmd]
+    return " ".join(sub.format_help().split())
+
+
+def test_help_names_the_files_written_without_being_named():
+    from latticeopt.cli import build_parser
+    from latticeopt.cli.calibrate import CALIBRATION_FILES
+    from latticeopt.cli.mesh import RENDER_OUTPUT
+
+    commands = next(a for a in build_parser()._actions if a.dest == "command").choices
+    assert commands["render"].get_default("output") == RENDER_OUTPUT
+    assert f"write the picture to {RENDER_OUTPUT}" in _help("render")
+    assert all(name in _help("calibrate") for name in CALIBRATION_FILES) and "runs/calibrate-<DATA stem>" in \
+        _help("calibrate")
+    assert commands["classify-train"].get_default("out") == "gestures_out"
+    text = _help("classify-train")
+    for name in ("gestures_out", "gesture_cnn.npz", "gesture_lstm.npz", "confusion_cnn.png", "confusion_lstm.png",
+                 "report.md", "summary.json", "--cache-dir"):
+        assert name in text, name
+    for name in ("sensitivity.csv", "tornado.png"):
+        assert name in _help("sensitivity")
+    for name in ("results.sqlite", "_history.csv", "_report.txt", "_result.json", "_convergence.png", "_path.png",
+                 "categories.csv"):
+        assert name in _help("optimize")
+    assert "writes no other file unless -o or --stl" in _help("mesh")
+
+
+@pytest.mark.parametrize("study, extra", [("sensitivity_press.toml", []),
+                                          ("quick.toml", ["phantoms.counts={1=2}"])])
+def test_sweep_help_names_every_file_a_sweep_writes(study, extra, tmp_path):
+    from pathlib import Path
+
+    from test_sensitivity import press_model
+
+    from latticeopt.study.config import load_study
+    from latticeopt.study.sweep import run_sweep
+
+    root = Path(__file__).resolve().parents[1] / "studies"
+    s = load_study(root / study, [f"out={(tmp_path / 'o').as_posix()!r}", *extra])
+    run_sweep(s, press_model, jobs=1, progress=False)
+    written = sorted(p.name for p in (tmp_path / "o").iterdir())
+    assert "results.sqlite" in written
+    text = _help("sweep")
+    assert [name for name in written if name not in text] == []

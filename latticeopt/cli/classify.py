@@ -13,9 +13,10 @@ def register(sub) -> None:
         "classify-train", help="simulate the 12 touch gestures with a sensor model and train the CNN and LSTM",
         description="Simulate gesture sequences (15 frames x 104 measurements) with an exported sensor model, "
                     "train the paper's CNN and LSTM (Adam 1e-4, cross-entropy, batch 256, best validation "
-                    "epoch; 8:2 split per class) and test them on a separately generated set. Writes model "
-                    "files, confusion-matrix PNGs, report.md and summary.json. Accuracies are on SIMULATED "
-                    "data.")
+                    "epoch; 8:2 split per class) and test them on a separately generated set. Writes into --out "
+                    "(default gestures_out under the working directory): gesture_cnn.npz and gesture_lstm.npz "
+                    "(the models), confusion_cnn.png, confusion_lstm.png, report.md and summary.json; the "
+                    "simulated sequences are cached in --cache-dir. Accuracies are on SIMULATED data.")
     p.add_argument("--model", required=True, metavar="SENSOR.npz", help="sensor model from `latticeopt export`")
     p.add_argument("--per-class", type=int, default=1000,
                    help="training + validation sequences per class (paper: 1000)")

@@ -15,7 +15,9 @@ def register(sub) -> None:
         description="Run STUDY as it is (the baseline) and once per value of every --vary key, one key at a time, "
                     "each into <out>/sensitivity/KEY=VALUE (resumable stores). Prints the figures of every run "
                     "(press: V_rel at the deepest depth and the [[press.compare]] ratios; grid: mean V_rel ± SE "
-                    "per design and the best design) and draws a tornado plot of how far each key moves them.")
+                    "per design and the best design) and draws a tornado plot of how far each key moves them. "
+                    "Writes <out>/sensitivity/sensitivity.csv and tornado.png besides the runs' folders (<out> "
+                    "the study's out).")
     p.add_argument("study", metavar="STUDY.toml", help="a press study or a small grid (e.g. "
                    "studies/sensitivity_press.toml)")
     p.add_argument("--vary", action="append", required=True, metavar="KEY=V1,V2",
