@@ -1,7 +1,7 @@
 """Export a sensor model, simulate one frame of a touch and reconstruct it with one-step Tikhonov.
 
     python examples/export_and_reconstruct.py                 # 4 mm mesh, writes sensor.npz here
-    python examples/export_and_reconstruct.py --size 6 --out /tmp/sensor.npz
+    python examples/export_and_reconstruct.py --mesh-size 6 --out /tmp/sensor.npz
 
 The touch is a conductivity disc (the paper's reconstruction data), 20 mm across at 0.3 sigma0, centred at
 (30, 65) mm; the script prints where the reconstructed image changes most.
@@ -17,10 +17,10 @@ from latticeopt.sensor_model import SensorSimulator
 
 parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
 parser.add_argument("--out", default="sensor.npz", help="sensor-model file to write (.npz)")
-parser.add_argument("--size", type=float, default=4.0, help="mesh element size (mm), default 4")
+parser.add_argument("--mesh-size", type=float, default=4.0, help="mesh element size (mm), default 4")
 args = parser.parse_args()
 
-path = export_sensor_model(LatticeDesign(width_mm=4, thickness_mm=3), args.out, MeshSettings(size_mm=args.size))
+path = export_sensor_model(LatticeDesign(width_mm=4, thickness_mm=3), args.out, MeshSettings(size_mm=args.mesh_size))
 model = load_sensor_model(path)                         # numpy only; what a reconstruction program reads
 print(f"wrote {path}: {model.n_rows} rows, {model.n_pixels} x {model.n_pixels} pixels")
 

@@ -248,7 +248,7 @@ class _Electrics:
             if short and warn:
                 # the strain a law reads is a gradient: it settles on finer meshes than the geometry does
                 log.warning("conductivity_law %s on a mesh coarser than the laws converge on (%s): V_rel may read "
-                            "10-20 %% low; use mesh size_mm <= 1.4 with 3 channel and layer cells (--size 1.4 "
+                            "10-20 %% low; use mesh size_mm <= 1.4 with 3 channel and layer cells (--mesh-size 1.4 "
                             "--channel-cells 3 --layer-cells 3) or finer",
                             p.conductivity_law, ", ".join(short))
 

@@ -145,3 +145,17 @@ def test_cli_rejects_bad_arguments_in_one_line(argv, names, tmp_path, capsys):
     assert code == 2 and err.count("\n") == 1, err
     assert all(n in err for n in names), err
     assert not (tmp_path / "o").exists()
+
+
+def test_cli_writes_the_files_its_help_names(tmp_path, capsys, monkeypatch):
+    import latticeopt.study.calibrate as cal_module
+    from latticeopt.cli.calibrate import CALIBRATION_FILES
+
+    data = _write(tmp_path / "d.csv", [[3, w, 50, 50, 8.75, d, 7.0 * (1 + w / 4) * d / 100]
+                                       for w in (0, 4) for d in (2, 4)], ["v_rel"])
+    monkeypatch.setattr(cal_module, "coupled_predictor", lambda *a, **k: linear_predictor)
+    out = tmp_path / "o"
+    assert main(["calibrate", str(data), "--fit", f"{K}=1:50", "--out", str(out), "--max-evals", "8",
+                 "--profile-points", "0", "-q"]) == 0
+    assert sorted(p.name for p in out.iterdir()) == sorted(CALIBRATION_FILES)
+    assert f"wrote {out / CALIBRATION_FILES[0]} and {out / CALIBRATION_FILES[1]}" in capsys.readouterr().out

@@ -104,7 +104,7 @@ def test_a_read_only_folder_is_rejected(files, tmp_path):
 def test_good_outputs_reach_the_work(files, tmp_path):
     _accepted(["mesh", "-o", tmp_path / "m.vtu", "--cache-dir", tmp_path / "new" / "cache"], files)
     _accepted(["simulate", "--touch", "50,50,8.75,2", "--touch", "20,20,5,1"], files)
-    _accepted(["reconstruct", "--model", files.sensor, "--touch", "50,50,10,0.5", "-o", tmp_path / "r.png",
+    _accepted(["reconstruct", "--model", files.sensor, "--disc", "50,50,10,0.5", "-o", tmp_path / "r.png",
                "--snr-db", "40"], files)
     _accepted(["sweep", files.study, "--out", tmp_path / "runs" / "s"], files)
     _accepted(["sweep", files.study, "--out", tmp_path / "runs" / "s", "--dry-run"], files)
@@ -144,14 +144,23 @@ def test_physics_settings_reject_zero_contact_impedance():
 
 @pytest.mark.parametrize("touch", ["nan,50,10,0.5", "150,50,10,0.5", "50,-1,10,0.5", "50,50,inf,0.5",
                                    "50,50,1e9,0.5", "50,50,10,inf", "50,50,10,0", "50,50,-3,0.5", "50,50,10"])
-def test_reconstruct_touch_values(touch, files):
-    _rejected(["reconstruct", "--model", files.sensor, "--touch", touch, "-o", "x.png"], files, "--touch")
+def test_reconstruct_disc_values(touch, files):
+    _rejected(["reconstruct", "--model", files.sensor, "--disc", touch, "-o", "x.png"], files, "--disc")
+
+
+def test_reconstruct_touch_names_the_disc_flag(files, tmp_path):
+    # --touch is X,Y,R,D (a press) everywhere else; in reconstruct it once meant a disc X,Y,DIAMETER,RATIO
+    line = _rejected(["reconstruct", "--model", files.sensor, "--touch", "50,50,8.75,4", "-o", tmp_path / "r.png"],
+                     files, "--touch", "--disc X,Y,DIAMETER,RATIO", "50,50,8.75,4")
+    assert line.startswith("latticeopt reconstruct: error: --touch")
+    assert not (tmp_path / "r.png").exists()
+    _accepted(["reconstruct", "--model", files.sensor, "--disc", "50,50,8.75,4", "-o", tmp_path / "r.png"], files)
 
 
 @pytest.mark.parametrize("flag, value", [("--snr-db", "nan"), ("--snr-db", "-1000"), ("--seed", "-1"),
                                          ("--max-frames", "0"), ("--prior", "x")])
 def test_reconstruct_numbers(flag, value, files):
-    _rejected(["reconstruct", "--model", files.sensor, "--touch", "50,50,10,0.5", "-o", "x.png", f"{flag}={value}"],
+    _rejected(["reconstruct", "--model", files.sensor, "--disc", "50,50,10,0.5", "-o", "x.png", f"{flag}={value}"],
               files, flag)
 
 
@@ -184,6 +193,41 @@ def test_recon_eval_arguments(files):
     _rejected(["recon-eval", "--model", files.sensor, "--dataset", files.root / "missing.npz"], files, "--dataset")
 
 
+@pytest.mark.parametrize("argv, module, flag", [
+    (["recon-train", "--model", "{sensor}", "-o", "{tmp}/n.npz", "--per-count", "6", "--dataset", "{tmp}/d.npz"],
+     "torch", "PyTorch"),
+    (["recon-train", "--model", "{sensor}", "-o", "{tmp}/n.npz", "--per-count", "6"], "skimage", "scikit-image"),
+    (["recon-eval", "--model", "{sensor}", "--dataset", "{dataset}", "--methods", "tikhonov", "--figure",
+      "{tmp}/e.png"], "skimage", "scikit-image"),
+    (["recon-eval", "--model", "{sensor}", "--dataset", "{dataset}", "--methods", "tikhonov,dnn"], "torch",
+     "--methods dnn"),
+    (["reconstruct", "--model", "{sensor}", "--frames", "{frames}", "--method", "dnn", "-o", "{tmp}/r.png"], "torch",
+     "--method dnn"),
+    (["classify-train", "--model", "{sensor}", "--out", "{tmp}/g"], "torch", "PyTorch"),
+    (["sweep", "{study}", "--backend", "dask", "--out", "{tmp}/run"], "distributed", "--backend dask"),
+    (["sweep", "{study}", "--backend", "dask", "--out", "{tmp}/run", "--dry-run"], "distributed", "--backend dask"),
+    (["optimize", "{opt_study}", "--backend", "dask", "--out", "{tmp}/run"], "distributed", "--backend dask"),
+])
+def test_a_missing_extra_fails_before_any_work(argv, module, flag, files, tmp_path, monkeypatch):
+    """sys.modules[name] = None makes `import name` fail as if the package were not installed. Reaching a stage
+    (dataset simulation, training, sweep: patched to raise) would be "accepted", not one line and exit 2."""
+    import sys
+
+    from test_cli_fuzz import _import_everything
+
+    from latticeopt._extras import install_command
+
+    _import_everything()  # with every package present, so that only the commands' own check meets the gap
+    monkeypatch.setitem(sys.modules, module, None)
+    extra = "distributed" if module == "distributed" else "learn"
+    monkeypatch.chdir(files.root)  # where run_cli runs the command: the clone's path, not "."
+    names = {"sensor": files.sensor, "dataset": files.dataset, "frames": files.frames, "study": files.study,
+             "opt_study": files.opt_study, "tmp": tmp_path}
+    line = _rejected([a.format(**names) for a in argv], files, flag, "is not installed", install_command(extra))
+    assert line.startswith(f"latticeopt {argv[0]}: error: ")
+    assert list(tmp_path.iterdir()) == []  # no run folder, dataset, network or figure
+
+
 def test_classify_train_snr(files):
     pytest.importorskip("torch")
     _rejected(["classify-train", "--model", files.sensor, "--snr", "-1000", "-999"], files, "--snr")
@@ -214,7 +258,8 @@ def test_mesh_width_below_the_smallest_channel(files):
 
 def test_mesh_options_named_by_flag(files):
     _rejected(["mesh", "--layer-cells", "0"], files, "--layer-cells")
-    _rejected(["mesh", "--size", "nan"], files, "--size")
+    _rejected(["mesh", "--size", "nan"], files, "--mesh-size")  # the old name: the error names the flag
+    _rejected(["mesh", "--mesh-size", "nan"], files, "--mesh-size")
     _rejected(["mesh", "--channel-cells", "0"], files, "--channel-cells", "'auto'")
     outcome, status, err = run_cli(["mesh", "--channel-cells", "many"], files.root)  # argparse's own type check
     assert (outcome, status) == ("argparse", 2) and len(err.splitlines()) == 1
@@ -266,3 +311,68 @@ def test_documented_classify_example_names_a_file_classify_train_writes():
 def test_huge_sensor_is_rejected_before_the_layout_is_built(size, files):
     _rejected(["render", "--sensor-size", size], files, "--sensor-size", "400 pitches")
     _rejected(["mesh", "--sensor-size", size, "--pitch", "20"], files, "--sensor-size", "8000 mm")
+
+
+def test_forward_simulate_and_export_state_both_conductivity_defaults():
+    from latticeopt.cli import build_parser
+    from latticeopt.electrics import DEFAULT_SIGMA_S_PER_M
+    from latticeopt.sensor_model import SIGMA0_S_PER_M
+
+    commands = next(a for a in build_parser()._actions if a.dest == "command").choices
+    for cmd in ("forward", "simulate", "export"):
+        sigma = next(a for a in commands[cmd]._actions if a.dest == "sigma")
+        own = SIGMA0_S_PER_M if cmd == "export" else DEFAULT_SIGMA_S_PER_M
+        assert sigma.default == own, cmd
+        for value in (SIGMA0_S_PER_M, DEFAULT_SIGMA_S_PER_M):  # its own default and the other's, in S/m
+            assert f"{value:g}" in sigma.help, (cmd, sigma.help)
+        assert "docs/sensor_model.md" in sigma.help and f"{DEFAULT_SIGMA_S_PER_M / SIGMA0_S_PER_M:.0f} times" in \
+            sigma.help
+
+
+def _help(cmd: str) -> str:
+    from latticeopt.cli import build_parser
+
+    sub = next(a for a in build_parser()._actions if a.dest == "command").choices[cmd]
+    return " ".join(sub.format_help().split())
+
+
+def test_help_names_the_files_written_without_being_named():
+    from latticeopt.cli import build_parser
+    from latticeopt.cli.calibrate import CALIBRATION_FILES
+    from latticeopt.cli.mesh import RENDER_OUTPUT
+
+    commands = next(a for a in build_parser()._actions if a.dest == "command").choices
+    assert commands["render"].get_default("output") == RENDER_OUTPUT
+    assert f"write the picture to {RENDER_OUTPUT}" in _help("render")
+    assert all(name in _help("calibrate") for name in CALIBRATION_FILES) and "runs/calibrate-<DATA stem>" in \
+        _help("calibrate")
+    assert commands["classify-train"].get_default("out") == "gestures_out"
+    text = _help("classify-train")
+    for name in ("gestures_out", "gesture_cnn.npz", "gesture_lstm.npz", "confusion_cnn.png", "confusion_lstm.png",
+                 "report.md", "summary.json", "--cache-dir"):
+        assert name in text, name
+    for name in ("sensitivity.csv", "tornado.png"):
+        assert name in _help("sensitivity")
+    for name in ("results.sqlite", "_history.csv", "_report.txt", "_result.json", "_convergence.png", "_path.png",
+                 "categories.csv"):
+        assert name in _help("optimize")
+    assert "writes no other file unless -o or --stl" in _help("mesh")
+
+
+@pytest.mark.parametrize("study, extra", [("sensitivity_press.toml", []),
+                                          ("quick.toml", ["phantoms.counts={1=2}"])])
+def test_sweep_help_names_every_file_a_sweep_writes(study, extra, tmp_path):
+    from pathlib import Path
+
+    from test_sensitivity import press_model
+
+    from latticeopt.study.config import load_study
+    from latticeopt.study.sweep import run_sweep
+
+    root = Path(__file__).resolve().parents[1] / "studies"
+    s = load_study(root / study, [f"out={(tmp_path / 'o').as_posix()!r}", *extra])
+    run_sweep(s, press_model, jobs=1, progress=False)
+    written = sorted(p.name for p in (tmp_path / "o").iterdir())
+    assert "results.sqlite" in written
+    text = _help("sweep")
+    assert [name for name in written if name not in text] == []

@@ -176,8 +176,8 @@ def _paths(f, suffix: str | None, good: list[str]) -> st.SearchStrategy[str]:
     return st.one_of(st.sampled_from(good), st.sampled_from(bad)) if good else st.sampled_from(bad)
 
 
-def _touches(reconstruct: bool) -> st.SearchStrategy[str]:
-    good = "50,50,10,0.5" if reconstruct else "50,50,8.75,2"
+def _touches(disc: bool) -> st.SearchStrategy[str]:
+    good = "50,50,10,0.5" if disc else "50,50,8.75,2"
     parts = st.lists(st.sampled_from(["nan", "inf", "-inf", "-5", "0", "1e9", "50", "8.75", "2", "0.5", "1e308",
                                       "150", "x", ""]), min_size=1, max_size=5).map(",".join)
     return st.one_of(st.just(good), parts)
@@ -188,8 +188,8 @@ def _value(cmd: str, action: argparse.Action, f) -> st.SearchStrategy[str]:
     if action.choices is not None:
         good = st.sampled_from([str(c) for c in action.choices])
         return st.one_of(good, good, texts)
-    if dest == "touch":
-        return _touches(cmd == "reconstruct")
+    if dest in ("touch", "disc"):
+        return _touches(dest == "disc")
     if dest in OUT_DIRS:
         good = [str(f.root / "new_folder"), str(f.dir)]
         return _paths(f, None, good)
@@ -261,7 +261,7 @@ COMMANDS = sorted(SUBPARSERS)
 def command_lines(draw, cmd: str, f) -> list[str]:
     parser = SUBPARSERS[cmd]
     argv = [cmd, *draw(_positional(cmd, f))]
-    # one option of each required mutually exclusive group (reconstruct --frames | --touch), mostly
+    # one option of each required mutually exclusive group (reconstruct --frames | --disc | --touch), mostly
     forced = {draw(st.sampled_from(g._group_actions)).dest for g in parser._mutually_exclusive_groups if g.required
               and draw(st.integers(0, 9)) != 0}
     for action in parser._actions:

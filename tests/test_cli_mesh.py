@@ -163,3 +163,42 @@ def test_tetwild_acceptance_through_the_cli(tmp_path_factory, capfd):
     assert abs(s["region_volumes_mm3"]["hydrogel"] / 14448.0 - 1) < 0.005
     assert len(s["electrode_areas_mm2"]) == 16
     assert abs(np.mean(s["electrode_areas_mm2"]) / 12.0 - 1) < 0.01  # per-electrode: tests/test_mesh_tetwild.py
+
+
+def test_mesh_size_is_the_element_size_and_size_its_old_name(capfd, tmp_path, monkeypatch):
+    import latticeopt.mesh as mesh_module
+
+    monkeypatch.setattr(mesh_module, "_WARNED_COARSE", set())
+    base = ["mesh", "--width", "4", "--thickness", "3", "--no-cache", "--json"]
+    res = _cli(base + ["--mesh-size", "40"], tmp_path)  # a process of its own: the CLI's logging set-up
+    assert res.returncode == 0, res.stderr
+    new = json.loads(res.stdout)
+    # coarser than the 4 mm channel: one line on stderr, not an error
+    err = res.stderr.strip().splitlines()
+    assert len(err) == 1 and "size_mm = 40 mm" in err[0] and "channel width w = 4 mm" in err[0], err
+    code, out, _ = _run(base + ["--size", "40"], capfd)
+    old = json.loads(out)
+    assert code == 0 and old["mesh_settings"]["size_mm"] == new["mesh_settings"]["size_mm"] == 40
+    assert old["nodes"] == new["nodes"] and old["design"]["size_mm"] == 100  # the sensor side is untouched
+    code, _, err = _run(["mesh", "--mesh-size", "0"], capfd)
+    assert code == 2 and "--mesh-size" in err and len(err.strip().splitlines()) == 1
+
+
+def test_help_tells_the_two_sizes_apart(capsys):
+    code, out, _ = _run(["mesh", "--help"], capsys)
+    text = " ".join(out.split())
+    assert code == 0 and "--mesh-size MESH_SIZE_MM, --size MESH_SIZE_MM" in text
+    assert "mesh element size" in text and "not the sensor side (--sensor-size)" in text
+    assert "not the mesh element size (--mesh-size)" in text
+
+
+def test_mesh_stl_says_what_it_wrote(tmp_path, capsys):
+    folder = tmp_path / "stl"
+    code, out, err = _run(["mesh", "--width", "4", "--thickness", "3", "--mesh-size", "6", "--no-cache", "--stl",
+                           str(folder)], capsys)
+    assert code == 0, err
+    written = sorted(folder.iterdir())
+    assert written and all(p.suffix == ".stl" for p in written)
+    lines = [line for line in out.splitlines() if line.startswith("wrote ")]
+    assert sorted(line.split()[1] for line in lines) == sorted(str(p) for p in written)  # one line per file
+    assert any("hydrogel solid" in line for line in lines)

@@ -19,20 +19,20 @@ def _run(script: str, *args: str, cwd: Path) -> str:
 
 
 def test_simulate_press(tmp_path):
-    out = _run("simulate_press.py", "--size", "6", cwd=tmp_path)
+    out = _run("simulate_press.py", "--mesh-size", "6", cwd=tmp_path)
     v_rel = float(out.split("V_rel = ")[1].split(",")[0])
     assert 0.01 < v_rel < 0.2
 
 
 def test_small_sweep(tmp_path):
-    out = _run("small_sweep.py", "--out", "sweep", "--size", "6", cwd=tmp_path)
+    out = _run("small_sweep.py", "--out", "sweep", "--mesh-size", "6", cwd=tmp_path)
     assert "2 designs x 1 phantoms = 2 evaluations, 0 failed" in out
     for name in ("results.csv", "summary.csv", "report.txt"):
         assert (tmp_path / "sweep" / name).is_file()
 
 
 def test_export_and_reconstruct(tmp_path):
-    out = _run("export_and_reconstruct.py", "--size", "6", "--out", "sensor.npz", cwd=tmp_path)
+    out = _run("export_and_reconstruct.py", "--mesh-size", "6", "--out", "sensor.npz", cwd=tmp_path)
     assert (tmp_path / "sensor.npz").is_file()
     x, y = (float(s) for s in out.split(" at (")[1].split(")")[0].split(","))
     assert abs(x - 30) < 10 and abs(y - 65) < 10  # the image's largest change lies on the disc

@@ -33,7 +33,7 @@ def test_indent_text_output(capsys):
 
 @pytest.mark.parametrize("touch, fragment", [
     ("25,25,7.5", "--touch #1"), ("25,25,x,1", "--touch #1"), ("25,25,-1,1", "radius_mm"),
-    ("49,25,7.5,1", "touches[0].x_mm"), ("25,25,7.5,9.5", "touches[0].depth_mm"),
+    ("49,25,7.5,1", "--touch #1 x_mm"), ("25,25,7.5,9.5", "--touch #1 depth_mm"),
 ])
 def test_bad_touch_is_a_one_line_exit_2(capsys, touch, fragment):
     code = main(["indent", "--touch", touch, *COARSE])
@@ -44,4 +44,14 @@ def test_bad_touch_is_a_one_line_exit_2(capsys, touch, fragment):
 
 def test_overlapping_touches_rejected(capsys):
     assert main(["indent", "--touch", "20,25,6,1", "--touch", "28,25,6,1", *COARSE]) == 2
-    assert "touches[1]" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "--touch #2 (x_mm, y_mm)" in err and "from --touch #1 at" in err and "touches[" not in err
+
+
+@pytest.mark.parametrize("cmd", ["indent", "simulate"])
+def test_a_touch_the_mesh_cannot_hold_is_named_by_its_option(capsys, cmd):
+    # found once the mesh exists (no top node inside a 0.2 mm disc), yet named as the checks before any work name it
+    code = main([cmd, "--touch", "20,20,5,1", "--touch", "24.3,35.7,0.2,1", *COARSE])
+    err = capsys.readouterr().err
+    assert code == 2 and len(err.strip().splitlines()) == 1
+    assert "--touch #2 radius_mm" in err and "top-surface node" in err and "touches[" not in err

@@ -152,16 +152,16 @@ def test_bad_touches_are_rejected_before_any_solve(stack_mesh, monkeypatch):
         raise AssertionError("the solver was built for a bad touch")
 
     monkeypatch.setattr(mod.IndentationSolver, "__init__", boom)
-    for touches, name in [([(45, 25, 7.5, 1)], "touches[0].x_mm"), ([(25, 25, 7.5, 9)], "touches[0].depth_mm"),
-                          ([(20, 25, 6, 1), (28, 25, 6, 1)], "touches[1] (x_mm, y_mm)"),
-                          ([(25, 25, float("nan"), 1)], "touches[0].radius_mm")]:
+    for touches, name in [([(45, 25, 7.5, 1)], "touch #1 x_mm"), ([(25, 25, 7.5, 9)], "touch #1 depth_mm"),
+                          ([(20, 25, 6, 1), (28, 25, 6, 1)], "touch #2 (x_mm, y_mm)"),
+                          ([(25, 25, float("nan"), 1)], "touch #1 radius_mm")]:
         with pytest.raises(ParameterError) as err:
             indent(stack_mesh, touches)
         assert err.value.name == name
 
 
 def test_indenter_smaller_than_the_mesh_is_a_parameter_error(stack_solver):
-    with pytest.raises(ParameterError, match=r"touches\[0\]\.radius_mm"):
+    with pytest.raises(ParameterError, match=r"touch #1 radius_mm"):
         stack_solver.solve([(24.3, 24.3, 0.2, 1.0)])
 
 

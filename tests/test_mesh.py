@@ -482,3 +482,31 @@ def test_grid_without_electrode_edges_weights_give_the_exact_electrode_areas(wid
         areas.append(float(np.sum(triangle_areas(mesh.nodes_mm, tri) * mesh.weights(name))))
     # t high, as wide as the electrode's contact with the gel, whichever grid lines its edges fall between
     np.testing.assert_allclose(areas, d.thickness_mm * _contact_mm(d), rtol=1e-9)
+
+
+def test_an_element_coarser_than_the_narrowest_feature_is_warned_once(caplog, monkeypatch):
+    import latticeopt.mesh as mesh_module
+
+    monkeypatch.setattr(mesh_module, "_WARNED_COARSE", set())
+    design = LatticeDesign(width_mm=4, thickness_mm=3)
+    with caplog.at_level("WARNING", logger="latticeopt.mesh"):
+        mesh_design(design, MeshSettings(size_mm=2), cache_dir=False)
+        assert not caplog.records  # 2 mm resolves a 4 mm channel
+        mesh_design(design, MeshSettings(size_mm=40), cache_dir=False)
+        mesh_design(design, MeshSettings(size_mm=40), cache_dir=False)  # a sweep's next phantom: said once
+    record, = caplog.records
+    assert "size_mm = 40 mm" in record.message and "channel width w = 4 mm" in record.message
+    caplog.clear()
+    with caplog.at_level("WARNING", logger="latticeopt.mesh"):  # the uniform layer: the electrodes are narrowest
+        mesh_design(LatticeDesign(width_mm=0, electrode_width_mm=3), MeshSettings(size_mm=3.5), cache_dir=False)
+    record, = caplog.records
+    assert "electrode width = 3 mm" in record.message
+
+
+def test_narrowest_feature_is_the_channel_or_the_electrode():
+    from latticeopt.mesh import narrowest_feature_mm
+
+    assert narrowest_feature_mm(LatticeDesign(width_mm=2)) == ("channel width w", 2.0)
+    assert narrowest_feature_mm(LatticeDesign(width_mm=4)) == ("channel width w", 4.0)
+    assert narrowest_feature_mm(LatticeDesign(width_mm=6)) == ("electrode width", 4.0)
+    assert narrowest_feature_mm(LatticeDesign(width_mm=0)) == ("electrode width", 4.0)

@@ -46,7 +46,7 @@ def test_export_writes_a_loadable_model(model_path, capsys):
 
 def test_reconstruct_simulated_touch(model_path, tmp_path, capsys):
     png, npy = tmp_path / "r.png", tmp_path / "r.npy"
-    assert main(["reconstruct", "--model", str(model_path), "--touch", "50,50,20,0.2", "--snr-db", "50",
+    assert main(["reconstruct", "--model", str(model_path), "--disc", "50,50,20,0.2", "--snr-db", "50",
                  "--method", "tikhonov", "--prior", "laplacian", "-o", str(png), "--save-images", str(npy),
                  "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
@@ -69,7 +69,7 @@ def test_reconstruct_frames_file_with_gn(model_path, tmp_path, capsys):
 
 @pytest.mark.parametrize("case", ["frames_shape", "model_corrupt", "method", "lambda", "touch"])
 def test_bad_input_is_one_line_exit_2(model_path, tmp_path, capsys, case):
-    args = ["reconstruct", "--model", str(model_path), "--touch", "50,50,20,0.2", "-o", str(tmp_path / "x.png")]
+    args = ["reconstruct", "--model", str(model_path), "--disc", "50,50,20,0.2", "-o", str(tmp_path / "x.png")]
     if case == "frames_shape":
         np.save(tmp_path / "f.npy", np.zeros((3, 100)))
         args = ["reconstruct", "--model", str(model_path), "--frames", str(tmp_path / "f.npy"), "-o",
@@ -121,7 +121,7 @@ def test_train_then_evaluate_every_method(model_path, tmp_path, capsys):
 
 def test_reconstruct_figure_has_truth_beside_the_image_with_colour_bars(model_path, tmp_path, capsys,
                                                                        saved_figures):
-    assert main(["reconstruct", "--model", str(model_path), "--touch", "50,50,20,0.2", "--touch", "25,75,15,1.8",
+    assert main(["reconstruct", "--model", str(model_path), "--disc", "50,50,20,0.2", "--disc", "25,75,15,1.8",
                  "-o", str(tmp_path / "r.png")]) == 0
     capsys.readouterr()
     fig, = saved_figures

@@ -71,3 +71,29 @@ def test_an_input_that_fails_every_press_is_reported_not_fatal(tmp_path):
     assert rows[1]["figures"] == {} and rows[2]["figures"]
     write_table(rows, tmp_path / "s.csv")
     plot_tornado(rows, tmp_path / "t.png")
+
+
+def test_dry_run_prints_every_run_and_runs_none(tmp_path, capsys, monkeypatch):
+    import latticeopt.study.sweep
+    from latticeopt.cli import main
+
+    def no_run(*args, **kwargs):
+        raise AssertionError("a dry run ran a sweep")
+
+    monkeypatch.setattr(latticeopt.study.sweep, "run_sweep", no_run)
+    out = tmp_path / "o"
+    argv = ["sensitivity", str(STUDY), "--vary", "hydrogel_shear_kPa=2,15", "--set", f"out={out.as_posix()!r}",
+            "--dry-run"]
+    assert main(argv) == 0
+    text = capsys.readouterr().out
+    runs = load_variants(STUDY, [parse_vary("hydrogel_shear_kPa=2,15")], [f"out={out.as_posix()!r}"])
+    for label, _, _, study in runs:
+        assert f"{label} " in text and f"= {study.n_tasks}; out {study.out_dir}" in text
+    assert f"3 runs (the baseline and 2 variants), {sum(r[3].n_tasks for r in runs)} evaluations" in text
+    assert f"would write {out / 'sensitivity' / 'sensitivity.csv'} and" in text
+    assert not out.exists()  # nothing written
+    assert main([*argv, "--json"]) == 0
+    import json
+
+    plan = json.loads(capsys.readouterr().out)
+    assert [r["run"] for r in plan["runs"]] == [r[0] for r in runs] and plan["dry_run"] is True

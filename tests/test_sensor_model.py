@@ -180,3 +180,23 @@ def test_npz_members_are_plain_arrays(path):
     assert "metadata.npy" in names and all(n.endswith(".npy") for n in names)
     with np.load(path, allow_pickle=False) as z:
         assert all(z[k].dtype != object for k in z.files)
+
+
+def test_the_documented_voltage_range_is_the_default_exports():
+    """docs/sensor_model.md quotes |V_ref| of `latticeopt export` at its defaults (design, 2 mm mesh, sigma0, 1 mA).
+
+    The 1 S/m forward solve divided by sigma0 is that export's V_ref (the identity tested above), without its
+    Jacobian."""
+    import re
+    from pathlib import Path
+
+    from latticeopt.cli import build_parser
+    from latticeopt.electrics import DEFAULT_CURRENT_A
+
+    export = next(a for a in build_parser()._actions if a.dest == "command").choices["export"]
+    assert export.get_default("sigma") == SIGMA0_S_PER_M and export.get_default("current") == DEFAULT_CURRENT_A
+    doc = " ".join((Path(__file__).parents[1] / "docs" / "sensor_model.md").read_text(encoding="utf-8").split())
+    lo_text, hi_text = re.search(r"\|V_ref\| from ([\d.]+) to ([\d.]+) V at 1 mA for the default design", doc).groups()
+    unit = ForwardModel(mesh_design(LatticeDesign(), MeshSettings(), cache_dir=False))
+    v = np.abs(unit.voltages) * DEFAULT_SIGMA_S_PER_M / SIGMA0_S_PER_M
+    assert (f"{v.min():.2g}", f"{v.max():.3g}") == (lo_text, hi_text)

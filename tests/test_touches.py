@@ -22,19 +22,19 @@ def test_valid_touches_pass_and_are_normalised():
 
 
 @pytest.mark.parametrize("touches, name, fragment", [
-    ([(50, 50, 8.75, 4), (95, 50, 8.75, 1)], "touches[1].x_mm", "8.75 <= x_mm <= 91.25"),
-    ([(50, 5, 8.75, 1)], "touches[0].y_mm", "8.75 <= y_mm <= 91.25"),
-    ([(50, 50, 8.75, 9.0)], "touches[0].depth_mm", "< 9"),
-    ([(50, 50, 8.75, 12.0)], "touches[0].depth_mm", "< 9"),
-    ([(50, 50, 0.0, 1)], "touches[0].radius_mm", "0 < radius_mm"),
-    ([(50, 50, -2, 1)], "touches[0].radius_mm", "0 < radius_mm"),
-    ([(50, 50, 8, 1), (60, 55, 8, 1)], "touches[1] (x_mm, y_mm)", "overlap"),
-    ([(20, 20, 8, 1), (80, 80, 8, 1), (30, 25, 8, 1)], "touches[2] (x_mm, y_mm)", "touches[0]"),
-    ([(50, math.nan, 8, 1)], "touches[0].y_mm", "finite"),
-    ([(50, 50, 8, math.inf)], "touches[0].depth_mm", ""),
-    ([(50, 50, 8, -1)], "touches[0].depth_mm", "0 <= depth_mm"),
-    ([(50, 50, 60, 1)], "touches[0].radius_mm", "fit on the sensor"),
-    ([(50, 50, 8)], "touches[0]", "four values"),
+    ([(50, 50, 8.75, 4), (95, 50, 8.75, 1)], "touch #2 x_mm", "8.75 <= x_mm <= 91.25"),
+    ([(50, 5, 8.75, 1)], "touch #1 y_mm", "8.75 <= y_mm <= 91.25"),
+    ([(50, 50, 8.75, 9.0)], "touch #1 depth_mm", "< 9"),
+    ([(50, 50, 8.75, 12.0)], "touch #1 depth_mm", "< 9"),
+    ([(50, 50, 0.0, 1)], "touch #1 radius_mm", "0 < radius_mm"),
+    ([(50, 50, -2, 1)], "touch #1 radius_mm", "0 < radius_mm"),
+    ([(50, 50, 8, 1), (60, 55, 8, 1)], "touch #2 (x_mm, y_mm)", "overlap"),
+    ([(20, 20, 8, 1), (80, 80, 8, 1), (30, 25, 8, 1)], "touch #3 (x_mm, y_mm)", "touch #1"),
+    ([(50, math.nan, 8, 1)], "touch #1 y_mm", "finite"),
+    ([(50, 50, 8, math.inf)], "touch #1 depth_mm", ""),
+    ([(50, 50, 8, -1)], "touch #1 depth_mm", "0 <= depth_mm"),
+    ([(50, 50, 60, 1)], "touch #1 radius_mm", "fit on the sensor"),
+    ([(50, 50, 8)], "touch #1", "four values"),
     ([], "touches", "at least one"),
 ])
 def test_bad_touches_rejected_with_index_parameter_range_and_value(touches, name, fragment):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import sys
 from pathlib import Path
@@ -27,7 +28,8 @@ _DESIGN_ARGS = [
     ("--pattern", "pattern", str, f"layout family ({', '.join(PATTERNS)}; custom comes from --layout)"),
     ("--rim", "rim", str, f"hydrogel channel round the rim ({', '.join(RIMS)})"),
     ("--frame", "frame_mm", float, "silicone border round the lattice (mm); leads cross it to the electrodes"),
-    ("--sensor-size", "size_mm", float, "sensor side L (mm)"),
+    ("--sensor-size", "size_mm", float, "sensor side L (mm; design.size_mm in a study), not the mesh element size "
+     "(--mesh-size)"),
     ("--total-thickness", "total_thickness_mm", float, "stack thickness H (mm)"),
     ("--sealing", "sealing_mm", float, "sealing-layer thickness (mm)"),
     ("--electrodes", "n_electrodes", int, "number of electrodes (multiple of 4)"),
@@ -88,10 +90,31 @@ def add_touch_args(group) -> None:
 
 def touches_from_args(args: argparse.Namespace, design: LatticeDesign) -> tuple:
     """The ``--touch`` values, parsed and checked against ``design`` (before any meshing or solving)."""
-    from ..touches import Touch, validate_touches
+    from ..touches import Touch, touch_name, validate_touches
 
-    touches = [Touch.parse(text, name=f"--touch #{i + 1}") for i, text in enumerate(args.touch)]
-    return validate_touches(design, touches)
+    touches = [Touch.parse(text, name=touch_name(i, "--touch")) for i, text in enumerate(args.touch)]
+    return validate_touches(design, touches, name="--touch")
+
+
+@contextlib.contextmanager
+def touches_named_by_flag():
+    """Errors the mechanics raise about ``touch #k`` once it meets the mesh (a contact disc holding no node)
+    name the option: ``--touch #k``, as the checks before any work do."""
+    try:
+        yield
+    except ParameterError as exc:
+        if not exc.name.startswith("touch #"):
+            raise
+        raise ParameterError(f"--{exc.name}", exc.expected, exc.got) from None
+
+
+def sigma_help(default: float) -> str:
+    """``--sigma`` of forward and simulate: their default and how export's differs (one text, two commands)."""
+    from ..sensor_model import SIGMA0_S_PER_M
+
+    return (f"hydrogel conductivity (S/m); default {default:g} (LiCl hydrogels conduct 1-10 S/m). 'export' "
+            f"defaults to the paper's image-model sigma0 = {SIGMA0_S_PER_M:g} S/m instead, with z_c * sigma kept: "
+            f"the same V_rel, voltages {default / SIGMA0_S_PER_M:.0f} times these (docs/sensor_model.md)")
 
 
 def _int_or_auto(text: str) -> int | str:
@@ -111,8 +134,9 @@ def add_mesh_args(parser: argparse.ArgumentParser) -> None:
     auto = ", ".join([f"{k} {n}" for k, n in CHANNEL_CELLS_AUTO.items()] + [f"else {CHANNEL_CELLS_DEFAULT}"])
     g = parser.add_argument_group("mesh")
     g.add_argument("--mesher", default=None, help=f"one of {', '.join(MESHERS)}; default {d.mesher}")
-    g.add_argument("--size", dest="mesh_size_mm", type=float, default=None,
-                   help=f"target element size (mm); default {d.size_mm}")
+    g.add_argument("--mesh-size", "--size", dest="mesh_size_mm", type=float, default=None,
+                   help=f"mesh element size: the target edge length of the elements (mm; mesh.size_mm in a study), "
+                        f"not the sensor side (--sensor-size); --size is the old name; default {d.size_mm}")
     g.add_argument("--channel-cells", type=_int_or_auto, default=None,
                    help=f"grid and extruded: minimum cells across a channel, or 'auto' (the family's converged "
                         f"count: {auto}); default {d.channel_cells}")
@@ -167,11 +191,17 @@ def study_overrides(args: argparse.Namespace) -> list[str]:
 
 
 def check_parallel_args(args: argparse.Namespace) -> None:
-    """Reject ``--jobs < 1`` and a ``--scheduler`` without ``--backend dask`` before any work."""
+    """Reject ``--jobs < 1``, a ``--scheduler`` without ``--backend dask`` and ``--backend dask`` without
+    dask.distributed installed, before any work (``--dry-run`` included)."""
+    from .._extras import require_extra
+
     if args.jobs is not None and args.jobs < 1:
         raise ParameterError("--jobs", "an integer >= 1", args.jobs)
     if args.scheduler is not None and args.backend != "dask":
         raise ParameterError("--scheduler", "no scheduler unless --backend dask", args.scheduler)
+    if args.backend == "dask":
+        require_extra("distributed", "it runs the phantoms on a dask cluster; or use --backend local",
+                      name="--backend dask")
 
 
 # -- [physics] keys from the command line ------------------------------------------------------------------
@@ -275,7 +305,7 @@ def check_output_path(flag: str, path, kind: str = "file", suffixes: tuple[str, 
 def check_mesh_args(args: argparse.Namespace) -> None:
     """The mesh options, named by their flags, and ``--cache-dir`` (unless ``--no-cache``: a writable folder or
     one that can be created), before any meshing."""
-    flags = {"mesher": "--mesher", "size_mm": "--size", "channel_cells": "--channel-cells",
+    flags = {"mesher": "--mesher", "size_mm": "--mesh-size", "channel_cells": "--channel-cells",
              "layer_cells": "--layer-cells", "epsilon_rel": "--epsilon"}
     try:
         mesh_settings_from_args(args)

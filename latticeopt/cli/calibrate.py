@@ -18,6 +18,9 @@ from ._common import (
     physics_from_args,
 )
 
+#: What ``calibrate`` writes into ``--out``.
+CALIBRATION_FILES = ("calibration.json", "calibration.png")
+
 
 def register(sub) -> None:
     p = sub.add_parser(
@@ -27,7 +30,9 @@ def register(sub) -> None:
                     "residuals, a measured-vs-predicted plot and, with --fit-on, a predictive check on the rows "
                     "left out of the fit. DATA columns: design keys (width_mm, thickness_mm, rim, ...), x_mm, "
                     "y_mm, radius_mm, depth_mm, and v_rel or V1..V208 (pyEIT 'std' order; voltage rows need a "
-                    "depth_mm = 0 reference row). Example: studies/data/paper_press_measured.csv.")
+                    "depth_mm = 0 reference row). Example: studies/data/paper_press_measured.csv. Writes "
+                    f"{' and '.join(CALIBRATION_FILES)} (the fit and its plot) into --out, by default "
+                    "runs/calibrate-<DATA stem> under the working directory.")
     p.add_argument("data", metavar="DATA.csv", help="measured presses")
     p.add_argument("--fit", action="append", required=True, metavar="KEY=LOW:HIGH",
                    help="a [physics] key to fit and its bounds, e.g. hydrogel_shear_kPa=1:50 (repeatable)")
@@ -79,8 +84,9 @@ def run_calibrate(args: argparse.Namespace) -> int:
     cal = calibrate(presses, params, predict, fit_on=fit_on, max_evals=args.max_evals,
                     profile_points=args.profile_points, progress=say)
     summary = {**cal.summary(), "data": str(args.data), "physics": physics, "mesh": mesh.as_dict()}
-    (out / "calibration.json").write_text(json.dumps(summary, indent=1))
-    figure = plot_calibration(cal, out / "calibration.png")
+    table, picture = CALIBRATION_FILES
+    (out / table).write_text(json.dumps(summary, indent=1))
+    figure = plot_calibration(cal, out / picture)
     if args.json:
         emit_json({**summary, "figure": str(figure)})
         return 0
@@ -95,5 +101,5 @@ def run_calibrate(args: argparse.Namespace) -> int:
     for r in cal.rows:
         print(f"{r['row']:>3}  {'fit ' if r['used_in_fit'] else 'pred'}  {r['measured']:.5f}    {r['predicted']:.5f}"
               f"    {r['design']}, {r['depth_mm']:g} mm")
-    print(f"wrote {out / 'calibration.json'} and {figure}")
+    print(f"wrote {out / table} and {figure}")
     return 0

@@ -13,9 +13,10 @@ def register(sub) -> None:
         "classify-train", help="simulate the 12 touch gestures with a sensor model and train the CNN and LSTM",
         description="Simulate gesture sequences (15 frames x 104 measurements) with an exported sensor model, "
                     "train the paper's CNN and LSTM (Adam 1e-4, cross-entropy, batch 256, best validation "
-                    "epoch; 8:2 split per class) and test them on a separately generated set. Writes model "
-                    "files, confusion-matrix PNGs, report.md and summary.json. Accuracies are on SIMULATED "
-                    "data.")
+                    "epoch; 8:2 split per class) and test them on a separately generated set. Writes into --out "
+                    "(default gestures_out under the working directory): gesture_cnn.npz and gesture_lstm.npz "
+                    "(the models), confusion_cnn.png, confusion_lstm.png, report.md and summary.json; the "
+                    "simulated sequences are cached in --cache-dir. Accuracies are on SIMULATED data.")
     p.add_argument("--model", required=True, metavar="SENSOR.npz", help="sensor model from `latticeopt export`")
     p.add_argument("--per-class", type=int, default=1000,
                    help="training + validation sequences per class (paper: 1000)")
@@ -89,10 +90,10 @@ def _sensor_model(path: str):
 
 def run_classify_train(args) -> int:
     from .. import _validate as v
+    from .._extras import require_extra
     from ..errors import ParameterError
     from ..gestures import MeasurementConfig, generate_gestures
     from ..gestures.experiment import accuracy_table, train_gesture_models
-    from ..learn._torch import require_torch
     from ._common import check_output_path
 
     t0 = time.perf_counter()
@@ -117,7 +118,7 @@ def run_classify_train(args) -> int:
     check_output_path("--out", args.out, kind="dir")
     if not args.no_cache:
         check_output_path("--cache-dir", args.cache_dir, kind="dir")
-    require_torch()
+    require_extra("learn", "classify-train trains the classifiers with it", modules=("torch",))
     model = _sensor_model(args.model)
     cache = None if args.no_cache else (args.cache_dir or _default_cache_dir())
     progress = not args.no_progress
@@ -147,9 +148,11 @@ def run_classify(args) -> int:
 
     import numpy as np
 
+    from .._extras import require_extra
     from ..gestures.experiment import check_sequences, classify_sequences, relative_to_reference
     from ..gestures.trajectories import GESTURES
 
+    require_extra("learn", "classify runs the classifier with it", modules=("torch",))
     frames = check_sequences(_load_npy(args.frames, "--frames"), source=args.frames, name="--frames")
     if args.reference is not None:
         frames = relative_to_reference(frames, _load_npy(args.reference, "--reference"), name="--reference")

@@ -17,8 +17,9 @@ from ._common import (
 
 
 def register(sub) -> None:
-    from ..electrics.forward import DEFAULT_CURRENT_A
+    from ..electrics.forward import DEFAULT_CURRENT_A, DEFAULT_SIGMA_S_PER_M
     from ..interop import FORMATS
+    from ..sensor_model import SIGMA0_S_PER_M
 
     p = sub.add_parser("export", help="export a design as a sensor-model file for reconstruction",
                        description="Mesh a design, solve its rest state at the background conductivity and write "
@@ -26,8 +27,11 @@ def register(sub) -> None:
     add_design_args(p)
     add_mesh_args(p)
     g = p.add_argument_group("sensor model")
-    g.add_argument("--sigma", type=float, default=0.00312, help="background conductivity sigma0 (S/m); "
-                   "default 0.00312 (the paper's)")
+    g.add_argument("--sigma", type=float, default=SIGMA0_S_PER_M,
+                   help=f"background conductivity sigma0 (S/m); default {SIGMA0_S_PER_M:g}, the paper's image model. "
+                        f"forward and simulate default to {DEFAULT_SIGMA_S_PER_M:g} S/m: with z_c * sigma kept, the "
+                        f"same V_rel, and this file's voltages {DEFAULT_SIGMA_S_PER_M / SIGMA0_S_PER_M:.0f} times "
+                        "theirs (docs/sensor_model.md)")
     g.add_argument("--contact-impedance", type=float, default=None,
                    help="contact impedance (ohm m^2); default keeps z_c * sigma = 2e-3 ohm m^3/m (0.641 at sigma0)")
     g.add_argument("--current", type=float, default=DEFAULT_CURRENT_A, help="drive current (A); default 1e-3")

@@ -12,6 +12,7 @@ from ._common import (
     design_from_args,
     emit_json,
     mesh_from_args,
+    sigma_help,
 )
 
 PROTOCOLS = ("adjacent", "opposite")
@@ -27,8 +28,7 @@ def register(sub) -> None:
     add_design_args(p)
     add_mesh_args(p)
     g = p.add_argument_group("electrics")
-    g.add_argument("--sigma", type=float, default=DEFAULT_SIGMA_S_PER_M,
-                   help=f"hydrogel conductivity (S/m); default {DEFAULT_SIGMA_S_PER_M:g}")
+    g.add_argument("--sigma", type=float, default=DEFAULT_SIGMA_S_PER_M, help=sigma_help(DEFAULT_SIGMA_S_PER_M))
     g.add_argument("--contact-impedance", type=float, default=DEFAULT_CONTACT_IMPEDANCE_OHM_M2,
                    help=f"contact impedance z_c (ohm m^2); default {DEFAULT_CONTACT_IMPEDANCE_OHM_M2:g}")
     g.add_argument("--current", type=float, default=DEFAULT_CURRENT_A,

@@ -18,6 +18,7 @@ from ._common import (
     mesh_settings_from_args,
     physics_from_args,
     touches_from_args,
+    touches_named_by_flag,
 )
 
 
@@ -59,7 +60,8 @@ def run_indent(args) -> int:
     t0 = time.perf_counter()
     mesh = mesh_from_args(args)
     t_mesh = time.perf_counter() - t0
-    res = indent(mesh, touches, settings)
+    with touches_named_by_flag():
+        res = indent(mesh, touches, settings)
     summary = res.summary()
     summary.update({"design": design.as_dict(),
                     "mesh_settings": dataclasses.asdict(mesh_settings_from_args(args).resolved(design)),

@@ -16,10 +16,14 @@ from ._common import (
     mesh_settings_from_args,
 )
 
+#: ``render`` writes this file unless ``-o`` names another.
+RENDER_OUTPUT = "sensor.png"
+
 
 def register(sub) -> None:
     p = sub.add_parser("mesh", help="mesh a design and print a summary",
-                       description="Mesh a design (cached by content hash) and print a summary.")
+                       description="Mesh a design (cached by content hash in the mesh cache, see --cache-dir) and "
+                                   "print a summary; writes no other file unless -o or --stl names one.")
     add_design_args(p)
     add_mesh_args(p)
     p.add_argument("-o", "--output", default=None, help="write the mesh as VTU (ParaView) to this file")
@@ -30,10 +34,11 @@ def register(sub) -> None:
     p.set_defaults(func=run_mesh)
 
     r = sub.add_parser("render", help="render a design's mesh to a PNG (off-screen)",
-                       description="Render the meshed lattice with the sealing layer cut away.")
+                       description=f"Render the meshed lattice with the sealing layer cut away and write the picture "
+                                   f"to {RENDER_OUTPUT} in the working directory (another file with -o).")
     add_design_args(r)
     add_mesh_args(r)
-    r.add_argument("-o", "--output", default="sensor.png", help="PNG file (default sensor.png)")
+    r.add_argument("-o", "--output", default=RENDER_OUTPUT, help=f"PNG file (default {RENDER_OUTPUT})")
     r.add_argument("--show-sealing", action="store_true", help="draw the sealing layer (translucent)")
     r.set_defaults(func=run_render)
 
@@ -69,6 +74,8 @@ def run_mesh(args) -> int:
     print(f"min tet quality (mean ratio): {summary['min_quality']:.3f}")
     if out is not None:
         print(f"wrote {out}")
+    for name, path in summary.get("stl", {}).items():
+        print(f"wrote {path} ({name} solid, mm)")
     return 0
 
 

@@ -23,7 +23,11 @@ def register(sub) -> None:
                     "(image_cc) over the design variables "
                     "of a study's [optimize] table with an nlopt algorithm. Every phantom result goes to the "
                     "study's results store (shared with sweeps): stored designs are read, not recomputed, and an "
-                    "interrupted run resumes by replaying its path from the store. Schema: docs/studies.md. "
+                    "interrupted run resumes by replaying its path from the store. Writes into the study's out "
+                    "folder (or --out): results.sqlite, <name>_history.csv, <name>_report.txt, "
+                    "<name>_result.json, <name>_convergence.png and <name>_path.png (<name> the study's name; "
+                    "with categories, one such folder per category and categories.csv in their parent). "
+                    "Schema: docs/studies.md. "
                     f"Algorithms: {', '.join(ALGORITHMS)}.")
     p.add_argument("study", metavar="STUDY.toml", help="study file with an [optimize] table "
                    "(e.g. studies/optimize_square.toml)")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import time
 
 from ._common import (
@@ -14,15 +15,19 @@ from ._common import (
 def register(sub) -> None:
     r = sub.add_parser("reconstruct", help="reconstruct tactile images from voltage frames",
                        description="Reconstruct normalized conductivity-change images from frames (CSV/NPY with 208 "
-                                   "or 104 values per frame, docs/sensor_model.md) or from touches simulated with "
-                                   "the sensor model.")
+                                   "or 104 values per frame, docs/sensor_model.md) or from conductivity discs "
+                                   "simulated with the sensor model (--disc).")
     r.add_argument("--model", required=True, help="sensor-model .npz from 'latticeopt export'")
     src = r.add_mutually_exclusive_group(required=True)
     src.add_argument("--frames", help="frames file (.npy, .csv or .txt)")
-    src.add_argument("--touch", action="append", metavar="X,Y,D,RATIO",
-                     help="simulate a circular touch: centre (mm), diameter (mm), conductivity / sigma0 (repeatable)")
+    src.add_argument("--disc", action="append", metavar="X,Y,DIAMETER,RATIO",
+                     help="simulate a conductivity disc: centre (mm), diameter (mm), conductivity / sigma0 "
+                          "(repeatable)")
+    # --touch is X,Y,R,D (radius, depth) in simulate and indent: here it would silently mean a disc of another
+    # size, so the old spelling is refused with a hint (run_reconstruct)
+    src.add_argument("--touch", action="append", help=argparse.SUPPRESS)
     r.add_argument("--reference", help="reference (no-touch) frames file; default the model's simulated reference")
-    r.add_argument("--snr-db", type=float, default=None, help="with --touch: add noise of this SNR (dB)")
+    r.add_argument("--snr-db", type=float, default=None, help="with --disc: add noise of this SNR (dB)")
     r.add_argument("--seed", type=int, default=0, help="noise seed; default 0")
     _add_method_args(r)
     r.add_argument("--method", default="tikhonov", help="tikhonov (one-step GN), gn (iterative) or dnn")
@@ -85,7 +90,15 @@ def run_reconstruct(args) -> int:
     from ..recon.evaluate import plot_images
     from ..recon.frames import read_frames, reference_frame
 
+    if args.touch:  # the old spelling of --disc: refused before anything else is read
+        raise ParameterError("--touch", "--disc X,Y,DIAMETER,RATIO for a conductivity disc in reconstruct "
+                             "(--touch is X,Y,R,D, a press of radius R and depth D, in simulate and indent)",
+                             args.touch[0])
     method = v.choice("--method", args.method, ("tikhonov", "gn", "dnn"))
+    if method == "dnn":
+        from .._extras import require_extra
+
+        require_extra("learn", "method dnn runs the network with it", name="--method dnn", modules=("torch",))
     png = check_output_path("-o", args.output, suffixes=(".png",))
     npy = check_output_path("--save-images", args.save_images, suffixes=(".npy",))
     lam = _lam(args.lam)
@@ -101,10 +114,10 @@ def run_reconstruct(args) -> int:
     t0 = time.perf_counter()
     truth = None
     sim = None
-    if args.touch:
+    if args.disc:
         from ..sensor_model import SensorSimulator
 
-        touches = np.array([_touch(t, model.extent_mm) for t in args.touch])
+        touches = np.array([_disc(t, model.extent_mm) for t in args.disc])
         img = render_touches(touches, model.sigma0_S_per_m, model.n_pixels, model.extent_mm)
         sim = SensorSimulator(model)
         V = sim.voltages(img)
@@ -160,7 +173,7 @@ def run_reconstruct(args) -> int:
     return 0
 
 
-#: Largest --touch conductivity ratio: beyond a 1e6 contrast the forward solve's conditioning leaves fewer
+#: Largest --disc conductivity ratio: beyond a 1e6 contrast the forward solve's conditioning leaves fewer
 #: than ten significant digits in double precision (and the paper's touches span 0.05-2).
 MAX_TOUCH_RATIO = 1e6
 #: --snr-db range: below -40 dB the noise is 100 times the signal (an image of noise); above 200 dB it is below
@@ -168,7 +181,7 @@ MAX_TOUCH_RATIO = 1e6
 SNR_DB_RANGE = (-40.0, 200.0)
 
 
-def _touch(text: str, extent_mm=None):
+def _disc(text: str, extent_mm=None):
     import math
 
     from ..errors import ParameterError
@@ -177,31 +190,31 @@ def _touch(text: str, extent_mm=None):
     try:
         x, y, d, r = (float(s) for s in text.split(","))
     except ValueError:
-        raise ParameterError("--touch", form, text) from None
+        raise ParameterError("--disc", form, text) from None
     if not all(math.isfinite(val) for val in (x, y, d, r)):
-        raise ParameterError("--touch", f"{form}, all finite", text)
+        raise ParameterError("--disc", f"{form}, all finite", text)
     if not (0 < r <= MAX_TOUCH_RATIO):
-        raise ParameterError("--touch", f"a conductivity ratio 0 < RATIO <= {MAX_TOUCH_RATIO:g}", text)
+        raise ParameterError("--disc", f"a conductivity ratio 0 < RATIO <= {MAX_TOUCH_RATIO:g}", text)
     if d <= 0:
-        raise ParameterError("--touch", "a positive diameter", text)
+        raise ParameterError("--disc", "a positive diameter", text)
     if extent_mm is not None:
         x0, x1, y0, y1 = (float(e) for e in extent_mm)
         if not (x0 <= x <= x1 and y0 <= y <= y1):
-            raise ParameterError("--touch", f"a centre on the sensor ({x0:g} <= X <= {x1:g}, {y0:g} <= Y <= {y1:g} mm)",
+            raise ParameterError("--disc", f"a centre on the sensor ({x0:g} <= X <= {x1:g}, {y0:g} <= Y <= {y1:g} mm)",
                                  text)
         side = max(x1 - x0, y1 - y0)
         if d > side:
-            raise ParameterError("--touch", f"a diameter 0 < DIAMETER <= {side:g} mm (the sensor side)", text)
+            raise ParameterError("--disc", f"a diameter 0 < DIAMETER <= {side:g} mm (the sensor side)", text)
     return (x, y, d, r)
 
 
 def _check_reconstruct_args(args) -> None:
-    """reconstruct's numbers, before the model is read: touches' form, --snr-db, --seed, --max-frames, --max-iter."""
+    """reconstruct's numbers, before the model is read: discs' form, --snr-db, --seed, --max-frames, --max-iter."""
     from .. import _validate as v
     from ..recon.classical import PRIORS
 
-    for text in args.touch or []:
-        _touch(text)
+    for text in args.disc or []:
+        _disc(text)
     if args.snr_db is not None:
         v.real("--snr-db", args.snr_db, lo=SNR_DB_RANGE[0], hi=SNR_DB_RANGE[1])
     v.integer("--seed", args.seed, lo=0)

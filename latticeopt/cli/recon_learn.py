@@ -68,6 +68,10 @@ def _add_dataset_args(p) -> None:
 
 
 def run_train(args) -> int:
+    from .._extras import require_extra
+
+    # before anything else: without torch the dataset (up to an hour of solves) would be simulated for nothing
+    require_extra("learn", "recon-train trains the network and scores its images with it")
     from ..recon.dataset import DatasetConfig, ReconDataset, generate_dataset
     from ..recon.dnn import ReconTrainConfig, save_reconstructor, train_reconstructor
     from ..recon.evaluate import evaluate_methods
@@ -236,11 +240,15 @@ def _check_press_seed(args, model) -> None:
 
 def run_eval(args) -> int:
     from .. import _validate as v
+    from .._extras import require_extra
     from ..recon.dataset import ReconDataset
     from ..recon.evaluate import evaluate_methods, plot_comparison
 
     png = check_output_path("--figure", args.figure, suffixes=(".png",))
     methods, priors = _check_eval_args(args)
+    require_extra("learn", "recon-eval scores PSNR and SSIM with it", modules=("skimage",))
+    if "dnn" in methods:
+        require_extra("learn", "method dnn runs the network with it", name="--methods dnn", modules=("torch",))
     v.integer("--presses", args.presses, lo=0, hi=10_000)
     v.integer("--press-seed", args.press_seed, lo=0)
     model = _load_model(args.model)

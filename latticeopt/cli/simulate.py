@@ -17,7 +17,9 @@ from ._common import (
     emit_json,
     mesh_settings_from_args,
     physics_from_args,
+    sigma_help,
     touches_from_args,
+    touches_named_by_flag,
 )
 
 
@@ -32,7 +34,7 @@ def register(sub) -> None:
     add_mesh_args(p)
     g = p.add_argument_group("phantom and physics")
     add_touch_args(g)
-    g.add_argument("--sigma", type=float, default=d.sigma_S_per_m, help="hydrogel conductivity (S/m)")
+    g.add_argument("--sigma", type=float, default=d.sigma_S_per_m, help=sigma_help(d.sigma_S_per_m))
     g.add_argument("--contact-impedance", type=float, default=d.contact_impedance_ohm_m2,
                    help="electrode contact impedance (ohm m^2)")
     add_physics_arg(g)
@@ -71,7 +73,8 @@ def run_simulate(args) -> int:
     settings = mesh_settings_from_args(args)
     t0 = time.perf_counter()
     model = CoupledModel(design, settings, physics, cache_dir=False if args.no_cache else args.cache_dir)
-    res = model.simulate(touches)
+    with touches_named_by_flag():
+        res = model.simulate(touches)
     out = res.summary()
     out.update({"design": design.as_dict(), "touches": [t.as_dict() for t in touches],
                 "mesh_settings": dataclasses.asdict(settings.resolved(design)), "physics": physics.as_dict(),

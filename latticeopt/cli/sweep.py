@@ -19,7 +19,11 @@ def register(sub) -> None:
         "sweep", help="run a study (grid of designs x phantoms) into a resumable results store",
         description="Run every design x phantom of a study TOML file that its results store does not hold "
                     "yet, in parallel, writing each result the moment it finishes. Re-run the same command "
-                    "after an interruption to resume. Schema: docs/studies.md.")
+                    "after an interruption to resume. Writes into the study's out folder (or --out): "
+                    "results.sqlite (the store), study.json, latticeopt.lock (held while it runs), results.csv and "
+                    "report.txt; for a grid summary.csv, vrel_lines.png and vrel_heatmap.png (two fields); for a "
+                    "press study press.csv and press.png; excluded.csv and error.log when phantoms fail. "
+                    "Schema: docs/studies.md.")
     p.add_argument("study", metavar="STUDY.toml", help="study file (e.g. studies/quick.toml)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override a study key; dotted for tables, value in TOML syntax "

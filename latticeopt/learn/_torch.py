@@ -9,9 +9,8 @@ from __future__ import annotations
 import importlib
 from types import ModuleType
 
+from .._extras import install_command
 from ..errors import LatticeoptError
-
-INSTALL_HINT = 'pip install "latticeopt[learn]"'
 
 
 class MissingDependencyError(LatticeoptError, ImportError):
@@ -29,7 +28,7 @@ def require_module(name: str, package: str, feature: str) -> ModuleType:
         return importlib.import_module(name)
     except ImportError as exc:
         raise MissingDependencyError(
-            f"{package} is not installed (needed for {feature}): run `{INSTALL_HINT}`") from exc
+            f"{package} is not installed (needed for {feature}): run `{install_command('learn')}`") from exc
 
 
 def require_torch() -> ModuleType:

@@ -26,7 +26,7 @@ import numpy as np
 
 from ..errors import ParameterError
 from ..mesh.tetmesh import tet_volumes
-from ..touches import Touch
+from ..touches import Touch, touch_name
 
 INDENTERS = ("flat", "sphere")
 IN_PLANE = ("bonded", "frictionless")
@@ -132,7 +132,7 @@ class Constraints:
             sel = owner == i
             if not np.any(sel):
                 raise ParameterError(
-                    f"touches[{i}].radius_mm",
+                    f"{touch_name(i)} radius_mm",
                     "a contact disc holding at least one top-surface node of the mesh (refine the mesh or "
                     "enlarge the indenter)", t.radius_mm)
             self.nodes.append(top_nodes[sel])

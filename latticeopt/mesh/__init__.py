@@ -29,7 +29,8 @@ from ..design import LatticeDesign
 from ..errors import ParameterError
 from .tetmesh import FORMAT_VERSION, TetMesh, electrode_name
 
-__all__ = ["MESHERS", "MeshSettings", "TetMesh", "electrode_name", "mesh_design", "default_cache_dir"]
+__all__ = ["MESHERS", "MeshSettings", "TetMesh", "electrode_name", "mesh_design", "default_cache_dir",
+           "narrowest_feature_mm"]
 
 log = logging.getLogger(__name__)
 
@@ -180,6 +181,32 @@ def _build(design: LatticeDesign, settings: MeshSettings) -> TetMesh:
     return tetwild_mesh(design, settings.size_mm, settings.epsilon_rel)
 
 
+def narrowest_feature_mm(design: LatticeDesign) -> tuple[str, float]:
+    """The narrowest in-plane feature of ``design`` a mesh has to resolve, as ``(name, width in mm)``: the
+    channel width ``w`` of a parametric lattice, or the electrode width if that is narrower (or there are no
+    channels: the uniform layer; a custom layout, whose polygons have no single width)."""
+    features = [("electrode width", design.electrode_width_mm)]
+    if design.pattern != "custom" and design.width_mm > 0:
+        features.insert(0, ("channel width w", design.width_mm))  # named first when the two are as wide
+    return min(features, key=lambda f: f[1])
+
+
+#: (size_mm, feature, width) already warned about in this process: a sweep meshes (or reads) the same design
+#: once per phantom, and one line per design says it.
+_WARNED_COARSE: set[tuple] = set()
+
+
+def _warn_if_coarser_than_features(design: LatticeDesign, settings: MeshSettings) -> None:
+    name, width = narrowest_feature_mm(design)
+    key = (settings.size_mm, name, width)
+    if settings.size_mm <= width or key in _WARNED_COARSE:
+        return
+    _WARNED_COARSE.add(key)
+    log.warning("mesh element size size_mm = %g mm (--mesh-size) is coarser than the design's narrowest feature "
+                "(%s = %g mm): the mesh holds the geometry but V_rel on it can be far from a converged mesh's "
+                "(docs/verification.md); size_mm <= %g resolves it", settings.size_mm, name, width, width)
+
+
 def mesh_design(design: LatticeDesign, settings: MeshSettings | None = None,
                 cache_dir: str | Path | None | bool = None) -> TetMesh:
     """Mesh ``design`` (or read it from the cache).
@@ -190,7 +217,8 @@ def mesh_design(design: LatticeDesign, settings: MeshSettings | None = None,
         The sensor design.
     settings
         Mesher and sizes; defaults to :class:`MeshSettings()`. ``"auto"`` is resolved for ``design``; the
-        grid mesher refuses a layout that is not axis-aligned (:class:`ParameterError` naming ``mesher``).
+        grid mesher refuses a layout that is not axis-aligned (:class:`ParameterError` naming ``mesher``). A
+        ``size_mm`` coarser than :func:`narrowest_feature_mm` is logged as a warning (once per process).
     cache_dir
         Folder of the cache; ``None`` uses :func:`default_cache_dir`, ``False`` disables caching.
 
@@ -200,6 +228,7 @@ def mesh_design(design: LatticeDesign, settings: MeshSettings | None = None,
         ``info`` holds the (resolved) mesher, settings, key, build seconds and whether it came from the cache.
     """
     settings = (settings or MeshSettings()).resolved(design)
+    _warn_if_coarser_than_features(design, settings)  # every mesh (the CLI, studies, exports) is made here
     if settings.mesher == "grid":  # before any work (a cache look-up included)
         from .grid import require_axis_aligned
 
