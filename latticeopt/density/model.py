@@ -225,7 +225,7 @@ class DensityModel:
         g_u = np.zeros((self.mesh.n_nodes, 3))
         g_u[ref.node_ids] = dx_def
 
-        k0, f0 = solver._n_krylov, solver._n_factor
+        before = solver.linear_counts
         lam = solver.adjoint_solve(ind, g_u.ravel())
         # total force = sum over the held top nodes of -R_z: c = -e_z there
         c = np.zeros(3 * self.mesh.n_nodes)
@@ -238,7 +238,9 @@ class DensityModel:
         mechanics = -mechanics
         dstretch = self._to_cells(dS_dw[lt] * np.abs(self.mesh.tet_volumes_mm3()[lt])) - dstretch_m
         t3 = time.perf_counter()
-        counts.update(adjoint_krylov_iterations=solver._n_krylov - k0, adjoint_factorizations=solver._n_factor - f0)
+        after = solver.linear_counts
+        counts.update(adjoint_krylov_iterations=after["krylov_iterations"] - before["krylov_iterations"],
+                      adjoint_factorizations=after["factorizations"] - before["factorizations"])
         return PressResult(**out, dv_rel=electrics + mechanics, dv_rel_electrics=electrics,
                            dv_rel_mechanics=mechanics, dforce=dforce, dstretch=dstretch,
                            timings={"mechanics": t1 - t0, "electrics": t2 - t1, "gradient": t3 - t2,

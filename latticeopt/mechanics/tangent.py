@@ -153,6 +153,12 @@ class TangentSolves:
         du[D] = jump
         return du
 
+    @property
+    def linear_counts(self) -> dict:
+        """Factorizations and GMRES iterations of this solver since its last press began (they go on counting
+        through the adjoint solves that follow the press)."""
+        return {"factorizations": self._n_factor, "krylov_iterations": self._n_krylov}
+
     def adjoint_solve(self, result, rhs: np.ndarray, values: np.ndarray | None = None, rtol: float = 1e-10
                       ) -> np.ndarray:
         """Solve the converged tangent of ``result``: ``K_ff x_f = rhs_f`` with ``x_D = values`` (default 0).
