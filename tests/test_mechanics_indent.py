@@ -171,6 +171,53 @@ def test_convergence_error_names_step_depth_and_residual(stack_mesh):
         IndentationSolver(stack_mesh, s).solve([(25, 25, 7.5, 4.0)])
 
 
+def test_a_press_that_cannot_converge_gives_up_after_few_failed_steps(stack_mesh):
+    """Pressed to 8.6 of the stack's 9 mm the last millimetres cannot converge (every step from about 7 mm
+    fails): the solver gives up after 4 consecutive halvings, naming the step and the residual, instead of halving
+    down to min_step_mm (7 failed steps with max_step_mm = 1). 12 iterations per step keep the test short."""
+    solver = IndentationSolver(stack_mesh, IndentSettings(max_newton=12))
+    attempts = {"failed": 0, "since_accepted": 0}
+    newton = solver._newton
+
+    def counting(*args, **kwargs):
+        try:
+            out = newton(*args, **kwargs)
+        except Exception:
+            attempts["failed"] += 1
+            attempts["since_accepted"] += 1
+            raise
+        attempts["since_accepted"] = 0
+        return out
+
+    solver._newton = counting
+    with pytest.raises(ConvergenceError, match=r"load step \d+ from depth .* towards .* residual .* "
+                                               r"no progress: 4 failed steps in a row") as err:
+        solver.solve([(25, 25, 7.5, 8.6)])
+    assert attempts["since_accepted"] == 4, (attempts, str(err.value))
+
+
+def test_a_failed_step_is_never_retried_unchanged(stack_mesh):
+    """Every step to the final depth fails (forced): each halving must try a shorter step. Halving the nominal
+    increment instead retried the same last step while that increment exceeded what was left."""
+    from latticeopt.mechanics.tangent import _StepFailed
+
+    solver = IndentationSolver(stack_mesh, IndentSettings(max_step_mm=1.0))
+    newton, events = solver._newton, []
+
+    def failing_at_the_end(u, ev, cons, lam, final=True):
+        if lam >= 1.0:
+            events.append(("failed", lam))
+            raise _StepFailed("forced", 1.0, 0.5, (0.1, 1.0))
+        events.append(("ok", lam))
+        return newton(u, ev, cons, lam, final)
+
+    solver._newton = failing_at_the_end
+    with pytest.raises(ConvergenceError, match="towards 1.5 mm of 1.5 mm"):
+        solver.solve([(25, 25, 7.5, 1.5)])
+    assert events[:3] == [("ok", pytest.approx(2 / 3)), ("failed", 1.0), ("ok", pytest.approx(5 / 6))], events
+    assert all(a != b for a, b in zip(events[:-1], events[1:])), events
+
+
 def test_settings_are_validated():
     with pytest.raises(ParameterError, match="indenter"):
         IndentSettings(indenter="cone")
