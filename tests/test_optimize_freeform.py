@@ -160,3 +160,19 @@ def test_graded_study_writes_an_exact_layout(tmp_path, monkeypatch, capsys):
     bad = main(["optimize", "studies/optimize_graded.toml", "--out", str(tmp_path / "b"), "--set",
                 "graded.min_island_mm=12"])
     assert bad == 2 and "graded.min_island_mm" in capsys.readouterr().err
+
+
+def test_a_layout_in_separate_pieces_is_flagged(tmp_path):
+    """Two channels that each join two electrodes but not each other: no current flows between them in a cast
+    sensor, so the report must say so rather than present the density model's reading."""
+    from latticeopt.optimize.freeform import FreeformConfig, write_outputs
+
+    d = np.zeros((10, 10))
+    d[1, :] = 1.0   # y = 10..20 mm: electrodes at y = 12.5 on both sides
+    d[8, :] = 1.0   # y = 80..90 mm: electrodes at y = 87.5
+    write_outputs(DESIGN, d, FreeformConfig(cells=10, smooth_mm=0.0), tmp_path, [])
+    report = (tmp_path / "report.txt").read_text()
+    assert "WARNING: the layout is 2 separate pieces" in report
+    d[:, 1] = 1.0   # joined by a channel along x = 10..20 mm: one piece, no warning
+    write_outputs(DESIGN, d, FreeformConfig(cells=10, smooth_mm=0.0), tmp_path, [])
+    assert "WARNING" not in (tmp_path / "report.txt").read_text()

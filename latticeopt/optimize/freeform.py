@@ -352,6 +352,14 @@ def write_outputs(design, rho: np.ndarray, cfg, out: Path, history: list, geomet
     lines.append(f"{outline}: gel fraction "
                  f"{report['hydrogel_fraction']:.4f}, {report['pieces']} pieces, {report['pieces_dropped']} "
                  f"dropped (no electrode), {report['dropped_area_mm2']:.1f} mm^2 dropped")
+    if report["pieces"] > 1:
+        # separate pieces conduct to each other only through the density model's insulating floor: the model then
+        # reads large relative changes on rows across pieces that a cast sensor could not measure at all
+        warn = (f"the layout is {report['pieces']} separate pieces of gel: no current flows between electrodes "
+                "on different pieces, so this is not a working sensor; its V_rel in the density model comes from the "
+                "insulating floor (raise min_feature_mm, or constrain connectivity)")
+        lines.append("WARNING: " + warn)
+        log.warning(warn)
     if "not_castable" in report:
         lines.append(f"the outline is not a valid layout ({report['not_castable']}): no STL written")
     lines.append("check the outline on held-out presses before trusting it: latticeopt sweep with "
