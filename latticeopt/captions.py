@@ -19,10 +19,11 @@ def _join(values: Iterable) -> str:
     return "/".join(f"{v:g}" if isinstance(v, float) else str(v) for v in dict.fromkeys(values))
 
 
-def layout_caption(designs: Iterable[LatticeDesign]) -> str:
+def layout_caption(designs: Iterable[LatticeDesign], thickness: bool = True) -> str:
     """The layout of ``designs`` in words, e.g. ``square lattice (p = 12.5 mm) and uniform layer, no rim channel``.
 
-    A thickness shared by every design is named too (a varied one is on the figure's axis or legend).
+    A thickness shared by every design is named too (a varied one is on the figure's axis or legend), unless
+    ``thickness`` is false (a figure whose axis is the thickness).
 
     >>> from latticeopt.design import LatticeDesign
     >>> layout_caption([LatticeDesign(width_mm=4, rim="channel")])
@@ -32,8 +33,8 @@ def layout_caption(designs: Iterable[LatticeDesign]) -> str:
     """
     designs = list(designs)
     lattices = [d for d in designs if d.has_lattice]
-    thickness = {d.thickness_mm for d in designs}
-    t = f", t = {thickness.pop():g} mm" if len(thickness) == 1 else ""  # a varied thickness is on an axis
+    shared = {d.thickness_mm for d in designs}
+    t = f", t = {shared.pop():g} mm" if len(shared) == 1 and thickness else ""  # a varied one is on an axis
     if not lattices:
         return "uniform layer" + t
     custom = [d for d in lattices if d.pattern == "custom"]

@@ -86,11 +86,11 @@ def test_merit_figure_names_the_layout_mesh_and_targets(model, tmp_path, saved_f
     rim = build_sensor_model(LatticeDesign(width_mm=4.0, thickness_mm=3.0, rim="channel"),
                              MeshSettings(size_mm=5.0), n_pixels=32, cache_dir=False)
     for i, m in enumerate((model, rim)):
-        plot_merit_map(merit_map(m, targets=2, lam=1e-3), tmp_path / f"m{i}.png")
+        plot_merit_map(merit_map(m, targets=7, lam=1e-3), tmp_path / f"m{i}.png")
     titles = [" ".join(fig._suptitle.get_text().split()) for fig in saved_figures]
     assert titles[0] != titles[1]  # two layouts, two titles
     assert "no rim channel, t = 3 mm, w = 4 mm" in titles[0]
     assert ", rim channel, t = 3 mm, w = 4 mm" in titles[1] and "no rim channel" not in titles[1]
     for title in titles:
-        assert "4 targets (2 x 2)" in title and "grid mesh, 5 mm" in title and "noise-free" in title
+        assert "49 targets (7 x 7)" in title and "grid mesh, 5 mm" in title and "noise-free" in title
     assert blank_border(tmp_path / "m0.png") and blank_border(tmp_path / "m1.png")

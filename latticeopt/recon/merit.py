@@ -201,7 +201,7 @@ def plot_merit_map(result: MeritMap, path: str | Path, title: str | None = None)
     hx = (xs[1] - xs[0]) / 2 if len(xs) > 1 else 1.0
     hy = (ys[1] - ys[0]) / 2 if len(ys) > 1 else 1.0
     extent = (xs[0] - hx, xs[-1] + hx, ys[0] - hy, ys[-1] + hy)
-    fig, axes = plt.subplots(1, len(LABELS), figsize=(3.3 * len(LABELS), 3.4), constrained_layout=True)
+    fig, axes = plt.subplots(1, len(LABELS), figsize=(3.3 * len(LABELS), 3.9), constrained_layout=True)
     for ax, (key, label) in zip(axes, LABELS.items(), strict=True):
         a = result.figures[key]
         s = result.summary[key]
