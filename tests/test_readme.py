@@ -53,3 +53,19 @@ def test_relative_links_and_their_anchors_exist(doc):
         assert path.exists(), (doc.name, target)
         if anchor and path.suffix == ".md":
             assert anchor in _anchors(path), (doc.name, target)
+
+
+def test_the_figures_redrawn_from_tables_read_every_design():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("replot", ROOT / "docs" / "replot_from_tables.py")
+    replot = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(replot)
+    text = (ROOT / "docs" / "results.md").read_text()
+    for anchor in ("### The paper map: 30 designs", "### The paper map with the rim channel"):
+        rows = replot._table(text[text.index(anchor):], "| t \\ w (mm) |")
+        assert [r[0] for r in rows] == ["1", "2", "3", "4", "5"] and all(len(r) == 7 for r in rows)
+        cells = [replot._cell(c, 300) for r in rows for c in r[1:]]
+        assert all(0.04 < c["v_rel_mean"] < 0.12 and 15 <= c["n_fine"] <= 300 for c in cells)
+    assert replot._cell("**0.1155 ± 0.0069 (15)**".strip("*"), 280) == {"v_rel_mean": 0.1155, "v_rel_se": 0.0069,
+                                                                         "n": 280, "n_fine": 15}
