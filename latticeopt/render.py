@@ -54,6 +54,22 @@ def render_mesh(mesh: TetMesh, path: str | Path, show_sealing: bool = False,
         return _render(pv, mesh, Path(path), show_sealing, window_size)
 
 
+def caption(mesh: TetMesh) -> str:
+    """The figure's title: layout, channel width, thickness and the mesh (size, cells, nodes); empty for a mesh
+    that does not say which design it is."""
+    from .captions import layout_caption, mesh_caption
+    from .design import LatticeDesign
+
+    info = mesh.info.get("design")
+    if not info:
+        return ""
+    design = LatticeDesign(**info)
+    text = layout_caption([design]) + (f", w = {design.width_mm:g} mm" if design.has_lattice else "")
+    settings = {**mesh.info.get("settings", {}), "mesher": mesh.info.get("mesher", "")}
+    mesh_text = mesh_caption(settings) if "size_mm" in settings else f"{settings['mesher']} mesh"
+    return f"{text}\n{mesh_text}, {mesh.n_nodes} nodes"
+
+
 def _render(pv, mesh: TetMesh, path: Path, show_sealing: bool, window_size: tuple[int, int]) -> Path:
     pl = pv.Plotter(off_screen=True, window_size=list(window_size))
     pl.set_background("white")
@@ -88,15 +104,13 @@ def _render(pv, mesh: TetMesh, path: Path, show_sealing: bool, window_size: tupl
     entries.append(["electrodes", "#d62728"])
     legend = pl.add_legend(entries, bcolor="#ffffff", border=True, size=(0.26, 0.13), face="rectangle",
                            loc="upper left", font_family="arial")
+    legend.SetPosition(0.01, 0.77)  # below the two-line title at the upper edge
     for i, (_, colour) in enumerate(entries):  # dark text, coloured swatch
         legend.SetEntryColor(i, 0.1, 0.1, 0.1)
         legend.SetEntrySymbol(i, _swatch(pv, colour))
-    info = mesh.info.get("design", {})
-    if info:
-        pl.add_text(f"{info.get('pattern', 'square')} layout, w = {info.get('width_mm', 0):g} mm, "
-                    f"t = {info.get('thickness_mm', 0):g} mm, rim {info.get('rim', 'none')}; "
-                    f"{mesh.info.get('mesher', '')} mesh {mesh.n_nodes} nodes", position="lower_left",
-                    font_size=10, color="#222222")
+    text = caption(mesh)
+    if text:
+        pl.add_text(text, position="upper_edge", font_size=11, color="#222222")
     pl.camera_position = [(-0.55 * L, -1.25 * L, 1.2 * L), (0.5 * L, 0.5 * L, 0.0), (0, 0, 1)]
     pl.camera.zoom(1.15)
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -159,3 +159,24 @@ def test_cli_writes_the_files_its_help_names(tmp_path, capsys, monkeypatch):
                  "--profile-points", "0", "-q"]) == 0
     assert sorted(p.name for p in out.iterdir()) == sorted(CALIBRATION_FILES)
     assert f"wrote {out / CALIBRATION_FILES[0]} and {out / CALIBRATION_FILES[1]}" in capsys.readouterr().out
+
+
+def test_calibration_figure_names_the_presses_layout_and_mesh(tmp_path, saved_figures):
+    from test_report_plots import blank_border
+
+    from latticeopt.mesh import MeshSettings
+    from latticeopt.study.calibrate import plot_calibration
+
+    def predictor(presses, fitted):  # the test double, carrying a mesh as coupled_predictor's does
+        return linear_predictor(presses, fitted)
+
+    predictor.mesh_settings = MeshSettings(size_mm=3.0)
+    presses = _presses(tmp_path)
+    cal = calibrate(presses, [FitParameter(K, 1, 50)], predictor, fit_on={"width_mm": ["0", "4"]},
+                    profile_points=3)
+    plot_calibration(cal, tmp_path / "c.png")
+    title = " ".join(saved_figures[0]._suptitle.get_text().split())
+    assert "12 measured presses (6 fitted, 6 held out), r = 8.75 mm at (50, 50) mm" in title
+    assert "square lattice (p = 12.5 mm) and uniform layer, no rim channel, t = 3 mm" in title
+    assert "grid mesh, 3 mm" in title
+    assert blank_border(tmp_path / "c.png")

@@ -307,3 +307,17 @@ def test_the_figure_says_it_shows_a_two_level_estimate_and_how_many_fine_phantom
     lo, hi = min(ml.n_fine), max(ml.n_fine)
     span = f"{lo}-{hi}" if lo != hi else f"{lo}"
     assert f"two-level: {len(study.phantoms)} phantoms per design at the coarse level, {span} on this mesh" in title
+
+
+def test_cli_two_level_on_the_quick_study_says_how_many_phantoms_and_how_to_raise_them(tmp_path):
+    quick = str(Path(__file__).parents[1] / "studies" / "quick.toml")
+    done = run_cli("sweep", quick, "--set", "multilevel.pilot=15", "--out", str(tmp_path / "q"), "--dry-run")
+    assert done.returncode == 2
+    err = done.stderr.strip().splitlines()
+    assert len(err) == 1 and "phantoms.counts" in err[0]
+    assert "got {1: 1, 2: 1, 3: 1}" in err[0]  # phantoms per touch count, not the touch counts
+    assert "--set 'phantoms.counts={ 1 = 2, 2 = 2, 3 = 2 }'" in err[0]
+    raised = run_cli("sweep", quick, "--set", "multilevel.pilot=15", "--set", "phantoms.counts={ 1 = 2, 2 = 2, 3 = 2 }",
+                     "--out", str(tmp_path / "q"), "--dry-run")
+    assert raised.returncode == 0, raised.stderr
+    assert "two-level" in raised.stdout and not (tmp_path / "q" / "results.sqlite").exists()

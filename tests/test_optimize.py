@@ -553,3 +553,26 @@ def test_real_tiny_run_improves_on_its_start(tmp_path):
     assert all(s.assessment.n_failed == 0 for s in res.history)
     assert res.best.score > res.optimum.start_step.score
     assert res.paired[0] > 0
+
+
+def test_path_figure_names_what_it_shows_and_draws_points_on_a_bound_whole(tmp_path, saved_figures):
+    from test_report_plots import blank_border
+
+    path = _write(tmp_path, max_evals=12)
+    path.write_text(path.read_text().replace("lower = 1.0, upper = 5.0, start = 4.5",
+                                             "lower = 3.0, upper = 5.0, start = 3.0"))  # start on a bound
+    res = run_optimization(load_optimization(path), analytic_evaluate)
+    assert min(s.x["thickness_mm"] for s in res.history) == 3.0
+    fig = next(f for f in saved_figures if "path" in f.axes[0].get_title())
+    ax = fig.axes[0]
+    title = " ".join(ax.get_title().split())
+    assert "square lattice (p = 12.5 mm) and uniform layer, no rim channel" in title or \
+        "square lattice (p = 12.5 mm), no rim channel;" in title
+    assert "t = " not in title  # the thickness is a variable here, on the y axis
+    assert "3 phantoms per design" in title and "grid mesh, 5 mm" in title
+    assert fig.axes[1].get_ylabel() == "mean V_rel of each evaluation"  # the colour bar says what the colour is
+    (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
+    xs = [s.x["width_mm"] for s in res.history]
+    ys = [s.x["thickness_mm"] for s in res.history]
+    assert x0 < min(xs) and max(xs) < x1 and y0 < min(ys) and max(ys) < y1  # nothing cut by the frame
+    assert blank_border(res.outputs["path"]) and blank_border(res.outputs["convergence"])

@@ -76,3 +76,21 @@ def test_merit_cli(model, tmp_path, capsys):
     assert "--seed" in capsys.readouterr().err
     assert main(["merit", str(tmp_path / "missing.npz")]) == 2
     assert "MODEL" in capsys.readouterr().err
+
+
+def test_merit_figure_names_the_layout_mesh_and_targets(model, tmp_path, saved_figures):
+    from test_report_plots import blank_border
+
+    from latticeopt.recon.merit import plot_merit_map
+
+    rim = build_sensor_model(LatticeDesign(width_mm=4.0, thickness_mm=3.0, rim="channel"),
+                             MeshSettings(size_mm=5.0), n_pixels=32, cache_dir=False)
+    for i, m in enumerate((model, rim)):
+        plot_merit_map(merit_map(m, targets=7, lam=1e-3), tmp_path / f"m{i}.png")
+    titles = [" ".join(fig._suptitle.get_text().split()) for fig in saved_figures]
+    assert titles[0] != titles[1]  # two layouts, two titles
+    assert "no rim channel, t = 3 mm, w = 4 mm" in titles[0]
+    assert ", rim channel, t = 3 mm, w = 4 mm" in titles[1] and "no rim channel" not in titles[1]
+    for title in titles:
+        assert "49 targets (7 x 7)" in title and "grid mesh, 5 mm" in title and "noise-free" in title
+    assert blank_border(tmp_path / "m0.png") and blank_border(tmp_path / "m1.png")

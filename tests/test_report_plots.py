@@ -69,3 +69,57 @@ def test_a_long_two_level_title_stays_inside_the_figure(tmp_path, saved_figures)
         title = fig.axes[0].title.get_window_extent()
         assert "2-3 on this mesh" in " ".join(fig.axes[0].get_title().split())
         assert title.x0 >= 0 and title.x1 <= fig.bbox.x1, (title, fig.bbox)
+
+
+def _inside(fig, artist) -> bool:
+    fig.canvas.draw()  # lays the text out (constrained layout) before it is measured
+    box = artist.get_window_extent()
+    return box.x0 >= 0 and box.x1 <= fig.bbox.x1
+
+
+def blank_border(path, width: int = 2) -> bool:
+    """True when the saved image's outer ``width`` pixels are all background: nothing drawn runs off the
+    figure (a clipped title or label leaves ink on the edge)."""
+    import matplotlib.image as mpimg
+
+    a = mpimg.imread(path)[..., :3].mean(axis=-1)
+    edge = np.concatenate([a[:width].ravel(), a[-width:].ravel(), a[:, :width].ravel(), a[:, -width:].ravel()])
+    return bool(edge.min() > 0.9)
+
+
+def test_map_titles_name_the_layout(tmp_path, saved_figures):
+    plain = _study(tmp_path)
+    rim = study_from_dict({"name": "map", "out": str(tmp_path / "rim"), "design": {"rim": "channel"},
+                           "grid": {"thickness_mm": [1.0, 3.0], "width_mm": [0, 2, 4]},
+                           "phantoms": {"seed": 1, "counts": {"1": 2, "2": 1}}})
+    for study in (plain, rim):
+        plot_lines(study, _summary(study), tmp_path / "lines.png")
+        plot_heatmap(study, _summary(study), tmp_path / "heat.png")
+    titles = [" ".join(fig.axes[0].get_title().split()) for fig in saved_figures]
+    for title in titles[:2]:
+        assert "square lattice (p = 12.5 mm) and uniform layer, no rim channel" in title
+    for title in titles[2:]:
+        assert "square lattice (p = 12.5 mm) and uniform layer, rim channel" in title
+        assert "no rim channel" not in title
+    for fig in saved_figures:
+        assert _inside(fig, fig.axes[0].title)
+    assert blank_border(tmp_path / "lines.png") and blank_border(tmp_path / "heat.png")
+
+
+def test_press_title_names_layout_thickness_mesh_and_press_and_stays_inside(tmp_path, saved_figures):
+    from pathlib import Path
+
+    from latticeopt.study.config import load_study
+    from latticeopt.study.plots import plot_press
+    from latticeopt.study.store import Evaluation
+
+    study = load_study(Path(__file__).parents[1] / "studies" / "paper_press.toml")
+    evaluations = [Evaluation(design_key=d.content_hash(), phantom_key=str(i), settings_key="s", status="ok",
+                              v_rel=0.01 * p.touches[0].depth_mm) for d in study.designs
+                   for i, p in enumerate(study.phantoms)]
+    plot_press(study, evaluations, tmp_path / "press.png")
+    fig, = saved_figures
+    title = " ".join(fig.axes[0].get_title().split())
+    assert "without and with the rim channel, t = 3 mm" in title
+    assert "one press, r = 8.75 mm at (50, 50) mm, 9 depths" in title and "grid mesh, 2 mm" in title
+    assert _inside(fig, fig.axes[0].title) and blank_border(tmp_path / "press.png")

@@ -97,3 +97,29 @@ def test_dry_run_prints_every_run_and_runs_none(tmp_path, capsys, monkeypatch):
 
     plan = json.loads(capsys.readouterr().out)
     assert [r["run"] for r in plan["runs"]] == [r[0] for r in runs] and plan["dry_run"] is True
+
+
+def test_tornado_names_what_it_shows_and_keeps_labels_and_markers_clear(tmp_path, saved_figures):
+    from test_report_plots import blank_border
+
+    runs = load_variants(STUDY, [parse_vary("hydrogel_shear_kPa=4.99,5.01"), parse_vary("rim=channel")],
+                         [f"out={(tmp_path / 'o').as_posix()}"])
+    rows = run_sensitivity(runs, lambda s: run_sweep(s, press_model, jobs=1, progress=False, outputs=False))
+    plot_tornado(rows, tmp_path / "t.png")
+    fig, = saved_figures
+    title = " ".join(fig._suptitle.get_text().split())
+    assert "square lattice (p = 12.5 mm) and uniform layer, no rim channel, t = 3 mm" in title
+    assert "one press, r = 8.75 mm at (50, 50) mm, figures at 4 mm deep" in title and "grid mesh, 2 mm" in title
+    fig.canvas.draw()
+    for ax in fig.axes:
+        if not ax.get_visible():
+            continue
+        lo, hi = ax.get_xlim()
+        for line in ax.lines:  # the markers (and the baseline) inside the frame, not cut by it
+            x = [float(v) for v in line.get_xdata()]
+            assert all(lo < v < hi for v in x), (ax.get_title(), x, (lo, hi))
+        labels = [t for t in ax.texts if t.get_text() in ("4.99", "5.01")]
+        assert len(labels) == 2
+        a, b = (t.get_window_extent() for t in labels)
+        assert not a.overlaps(b), ax.get_title()  # two values close together: labels apart
+    assert blank_border(tmp_path / "t.png")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import inspect
+import re
 from pathlib import Path
 
 import pytest
@@ -291,3 +292,20 @@ def test_multilevel_needs_two_phantoms_per_touch_count_and_a_grid_study(tmp_path
     with pytest.raises(ParameterError) as info:
         load_study(tmp_path / "s.toml", ["multilevel.pilot=0"])
     assert info.value.name == "--set multilevel.pilot"
+
+
+def test_multilevel_count_error_quotes_the_numbers_and_a_setting_that_raises_them(tmp_path):
+    path = _write(tmp_path, ML.replace("counts = { 1 = 2, 2 = 2 }", "counts = { 1 = 3, 2 = 1, 3 = 0 }"))
+    with pytest.raises(ParameterError) as info:
+        load_study(path)
+    assert info.value.got == {1: 3, 2: 1}  # phantoms per touch count, not the list of touch counts
+    hint = re.search(r"--set '([^']+)'", str(info.value))
+    assert hint and hint.group(1) == "phantoms.counts={ 1 = 3, 2 = 2 }"
+    assert load_study(path, [hint.group(1)]).multilevel.pilot == 4  # the suggested setting is accepted
+
+
+def test_quick_study_takes_the_two_level_estimator_once_its_counts_are_raised():
+    with pytest.raises(ParameterError, match=r"got \{1: 1, 2: 1, 3: 1\}"):
+        load_study(STUDIES / "quick.toml", ["multilevel.pilot=15"])
+    study = load_study(STUDIES / "quick.toml", ["multilevel.pilot=15", "phantoms.counts={ 1 = 2, 2 = 2, 3 = 2 }"])
+    assert study.multilevel.pilot == 15 and len(study.phantoms) == 6

@@ -28,6 +28,19 @@ def _label(name: str) -> str:
     return name.replace("_mm", " (mm)").replace("_", " ")
 
 
+def _title(result, what: str) -> str:
+    """``what``, then the layout (fields the optimizer varies left out), the phantoms and the mesh."""
+    from ..captions import layout_caption, wrap_title
+    from ..study.plots import _mesh_caption
+
+    opt = result.optimization
+    n = len(opt.study.phantoms)
+    probes = f" and {len(opt.probes)} probe presses" if opt.probes else ""
+    layout = layout_caption(opt.study.designs, thickness="thickness_mm" not in opt.problem.names)
+    return wrap_title(f"{opt.study.name}: {what}, {len(result.history)} calls\n{layout}; {n} phantoms per "
+                      f"design{probes}\n{_mesh_caption(opt.study)}")
+
+
 def history_rows(result) -> list[dict]:
     """One dict per nlopt call: variables, score ± SE, terms, V_rel, constraints, bookkeeping."""
     rows = []
@@ -78,7 +91,7 @@ def plot_convergence(result, path: Path) -> Path:
     opt = result.optimization
     ax.set_xlabel("objective call")
     ax.set_ylabel(opt.config.objective.describe())
-    ax.set_title(f"{opt.study.name}: {opt.config.algorithm}")
+    ax.set_title(_title(result, opt.config.algorithm), fontsize=8.5)
     ax.grid(alpha=0.3)
     ax.legend(fontsize="small")
     fig.savefig(path, dpi=130)
@@ -149,16 +162,18 @@ def plot_path(result, path: Path, vmap: dict | None) -> Path | None:
     else:
         sc = ax.scatter(x, y, c=[s.score for s in h], cmap="viridis", s=18, zorder=3, label="evaluations")
         ax.plot(x, y, "-", color="grey", lw=0.8, alpha=0.7)
-        fig.colorbar(sc, ax=ax, label="score (no stored map with these settings)")
+        fig.colorbar(sc, ax=ax, label=f"{result.optimization.config.objective.describe()} of each evaluation")
     ax.plot(problem.start[0], problem.start[1], "s", color="tab:orange", ms=8, label="start", zorder=4)
     if result.best is not None:
         ax.plot(result.best.x[xf], result.best.x[yf], "*", color="tab:red", ms=15, label="optimum", zorder=5)
-    if vmap is None:
-        ax.set_xlim(problem.lower[0], problem.upper[0])
-        ax.set_ylim(problem.lower[1], problem.upper[1])
+    if vmap is None:  # the bounds, padded so that a point on a bound is drawn whole
+        for setter, lo, hi in ((ax.set_xlim, problem.lower[0], problem.upper[0]),
+                               (ax.set_ylim, problem.lower[1], problem.upper[1])):
+            pad = 0.04 * (hi - lo)
+            setter(lo - pad, hi + pad)
     ax.set_xlabel(_label(xf))
     ax.set_ylabel(_label(yf))
-    ax.set_title(f"{result.optimization.study.name}: {result.optimization.config.algorithm} path")
+    ax.set_title(_title(result, f"{result.optimization.config.algorithm} path"), fontsize=8.5)
     ax.legend(fontsize="small", loc="best")
     fig.savefig(path, dpi=130)
     return path

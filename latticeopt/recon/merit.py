@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import _validate as v
+from ..captions import layout_caption, mesh_caption
 from ..errors import ParameterError
 from ..sensor_model import SensorModel
 
@@ -180,7 +181,12 @@ def merit_map(model: SensorModel, targets: int = 7, diameter_mm: float | None = 
         a[silent] = np.nan
     return MeritMap(targets_mm=xy, figures={k: a.reshape(m, m) for k, a in figs.items()}, images=images,
                     settings={"targets": m, "diameter_mm": d, "ratio": r, "prior": prior, "lambda": lam,
-                              "snr_db": snr_db})
+                              "snr_db": snr_db, "layout": _layout(model.design),
+                              "mesh": mesh_caption(model.mesh_settings)})
+
+
+def _layout(design) -> str:
+    return layout_caption([design]) + (f", w = {design.width_mm:g} mm" if design.has_lattice else "")
 
 
 def plot_merit_map(result: MeritMap, path: str | Path, title: str | None = None) -> Path:
@@ -195,7 +201,7 @@ def plot_merit_map(result: MeritMap, path: str | Path, title: str | None = None)
     hx = (xs[1] - xs[0]) / 2 if len(xs) > 1 else 1.0
     hy = (ys[1] - ys[0]) / 2 if len(ys) > 1 else 1.0
     extent = (xs[0] - hx, xs[-1] + hx, ys[0] - hy, ys[-1] + hy)
-    fig, axes = plt.subplots(1, len(LABELS), figsize=(3.3 * len(LABELS), 3.4), constrained_layout=True)
+    fig, axes = plt.subplots(1, len(LABELS), figsize=(3.3 * len(LABELS), 3.9), constrained_layout=True)
     for ax, (key, label) in zip(axes, LABELS.items(), strict=True):
         a = result.figures[key]
         s = result.summary[key]
@@ -206,9 +212,13 @@ def plot_merit_map(result: MeritMap, path: str | Path, title: str | None = None)
         ax.set_aspect("equal")
     axes[0].set_ylabel("y (mm)")
     st = result.settings
-    fig.suptitle(title or f"GREIT figures over {st['targets']} x {st['targets']} targets of {st['diameter_mm']:g} mm, "
-                 f"sigma/sigma0 = {st['ratio']:g}, one-step Tikhonov ({st['prior']}, lambda {st['lambda']})",
-                 fontsize=10)
+    noise = "noise-free" if st.get("snr_db") is None else f"SNR {st['snr_db']:g} dB"
+    default = (f"GREIT figures over {st['targets'] ** 2} targets ({st['targets']} x {st['targets']}) of "
+               f"{st['diameter_mm']:g} mm, sigma/sigma0 = {st['ratio']:g}, one-step Tikhonov ({st['prior']}, "
+               f"lambda {st['lambda']}), {noise}")
+    if "layout" in st:  # the sensor the targets were imaged on
+        default += f"\n{st['layout']}; {st['mesh']}"
+    fig.suptitle(title or default, fontsize=10)
     path = Path(path)
     fig.savefig(path, dpi=120)
     plt.close(fig)

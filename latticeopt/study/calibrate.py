@@ -120,6 +120,7 @@ def coupled_predictor(mesh_settings=None, physics: Mapping | None = None, cache_
                 progress(f"row {pr.row}: {pr.design.describe()}, depth {pr.touch.depth_mm:g} mm")
         return out
 
+    predict.mesh_settings = mesh_settings  # named in the calibration's figure (None: the default mesh)
     return predict
 
 
@@ -138,6 +139,7 @@ class Calibration:
     fit_rows: tuple[int, ...]
     rows: tuple[dict, ...]
     profiles: dict
+    caption: str = ""
 
     def summary(self) -> dict:
         """JSON-ready (NaN as None)."""
@@ -280,7 +282,24 @@ def calibrate(presses: Sequence[Press], parameters: Sequence[FitParameter], pred
                      "predicted": float(q[0]) if q.size == 1 else float(np.mean(np.abs(q))),
                      "relative_residual": float(np.sqrt(r @ r))})
     return Calibration(tuple(parameters), fitted, se, intervals, at_bound, rss_min, dof, len(cache),
-                       tuple(pr.row for pr in fit_set), tuple(rows), profiles)
+                       tuple(pr.row for pr in fit_set), tuple(rows), profiles, _caption(presses, fit_set, predict))
+
+
+def _caption(presses: Sequence[Press], fit_set: Sequence[Press], predict: Predictor) -> str:
+    """What the calibration figure shows: the presses (fitted and held out), their layouts and the mesh."""
+    from ..captions import layout_caption, mesh_caption
+    from ..mesh import MeshSettings
+
+    places = sorted({(pr.touch.x_mm, pr.touch.y_mm, pr.touch.radius_mm) for pr in presses})
+    where = (f"r = {places[0][2]:g} mm at ({places[0][0]:g}, {places[0][1]:g}) mm" if len(places) == 1
+             else f"{len(places)} places")
+    text = (f"{len(presses)} measured presses ({len(fit_set)} fitted, {len(presses) - len(fit_set)} held out), "
+            f"{where}\n{layout_caption(pr.design for pr in presses)}")
+    if hasattr(predict, "mesh_settings"):  # the coupled model; a test double has no mesh
+        settings = predict.mesh_settings or MeshSettings()
+        meshes = {mesh_caption(settings.resolved(pr.design).as_dict()) for pr in presses}
+        text += "; " + " or ".join(sorted(meshes))
+    return text
 
 
 def plot_calibration(cal: Calibration, path: Path) -> Path:
@@ -315,5 +334,9 @@ def plot_calibration(cal: Calibration, path: Path) -> Path:
         ax.set_ylabel("sum of squared relative residuals")
         ax.set_title("conditional profile (others at their fit)", fontsize="small")
         ax.legend(fontsize="small")
+    if cal.caption:
+        from ..captions import wrap_title
+
+        fig.suptitle(wrap_title(f"calibration: {cal.caption}", 110), fontsize=9.5)
     fig.savefig(path, dpi=130)
     return path

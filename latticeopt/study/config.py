@@ -198,11 +198,13 @@ def study_from_dict(raw: Mapping, *, source: str = "<dict>", overridden: Sequenc
                               "level estimator chooses its own fine counts; use one or the other)",
                               adaptive.target_se)
         multilevel = _multilevel(where, _table(where, raw, "multilevel"), mesh)
-        small = sorted(k for k in {p.n_touches for p in phantoms}
-                       if sum(p.n_touches == k for p in phantoms) < 2)
-        if small:
+        per_count = {k: sum(p.n_touches == k for p in phantoms) for k in sorted({p.n_touches for p in phantoms})}
+        if any(n < 2 for n in per_count.values()):
+            raised = ", ".join(f"{k} = {max(n, 2)}" for k, n in per_count.items())
             raise where.error("phantoms.counts", "at least 2 phantoms per touch count with [multilevel] (each "
-                              "touch count is a stratum whose variances are estimated)", f"touch counts {small}")
+                              "touch count is a stratum whose variances are estimated); raise them in the study "
+                              f"or with --set 'phantoms.counts={{ {raised} }}'",
+                              per_count)
     return Study(name=name, kind=kind, designs=designs, grid=grid, phantom_set=phantom_set, phantoms=phantoms,
                  settings=settings, out_dir=Path(out), jobs=jobs, description=description, source=source,
                  multilevel=multilevel, adaptive=adaptive, table=json.loads(json.dumps(dict(raw), default=str)))

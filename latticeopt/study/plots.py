@@ -1,18 +1,18 @@
 """Figures of a finished sweep: V_rel against the first grid field, the two-field heat map, press curves.
 
-Every figure names the mesh that made it, says whether that mesh is converged (at least the default mesh for
-every design), and how many phantoms each mean is over.
+Every figure names the layout (lattice family, pitch, rim channel or not), the mesh that made it, says whether
+that mesh is converged (at least the default mesh for every design), and how many phantoms each mean is over.
 """
 
 from __future__ import annotations
 
 import math
-import textwrap
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
+from ..captions import layout_caption, wrap_title
 from ..mesh import MeshSettings
 from ._rows import _by_design, _label, _value
 from .config import Study
@@ -56,9 +56,9 @@ def _convergence_status(study: Study) -> str:
 
 
 def _title(first: str, study: Study) -> str:
-    """A figure title: ``first``, then the mesh caption, each line wrapped to fit over the axes (a long caption
-    is otherwise cut at both edges of the figure)."""
-    return "\n".join(textwrap.fill(line, 70) for line in f"{first}\n{_mesh_caption(study)}".splitlines())
+    """A figure title: ``first``, the layout, then the mesh caption, each line wrapped to fit over the axes (a
+    long caption is otherwise cut at both edges of the figure)."""
+    return wrap_title(f"{first}\n{layout_caption(study.designs)}\n{_mesh_caption(study)}")
 
 
 def _phantom_caption(study: Study, summary: Sequence[dict]) -> str:
@@ -163,7 +163,7 @@ def plot_press(study: Study, evaluations: Sequence[Evaluation], path: Path) -> P
     """V_rel against indentation depth, one curve per design (the paper's Fig. 8a layout)."""
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=(6.0, 4.2), layout="constrained")
+    fig = Figure(figsize=(6.4, 4.8), layout="constrained")
     ax = fig.add_subplot()
     depths = [p.touches[0].depth_mm for p in study.phantoms]
     for design, group in zip(study.designs, _by_design(study, evaluations)):
@@ -172,8 +172,8 @@ def plot_press(study: Study, evaluations: Sequence[Evaluation], path: Path) -> P
     t = study.phantoms[0].touches[0]
     ax.set_xlabel("indentation depth (mm)")
     ax.set_ylabel("$V_{rel}$")
-    ax.set_title(f"{study.name}: r = {t.radius_mm:g} mm at ({t.x_mm:g}, {t.y_mm:g}) mm, {len(depths)} depths\n"
-                 f"{_mesh_caption(study)}", fontsize=10)
+    ax.set_title(_title(f"{study.name}: one press, r = {t.radius_mm:g} mm at ({t.x_mm:g}, {t.y_mm:g}) mm, "
+                        f"{len(depths)} depths", study), fontsize=8.5)
     ax.grid(alpha=0.3)
     ax.legend(fontsize="small")
     fig.savefig(path, dpi=130)

@@ -134,10 +134,10 @@ def run_sensitivity(runs, run: Callable[[Study], object], progress: Callable[[st
             res = run(study)
         except AllFailedError as exc:  # this input breaks every phantom: a finding, not a reason to stop
             rows.append({"run": label, "key": key, "value": value, "figures": {}, "failed": study.n_tasks,
-                         "error": str(exc)})
+                         "error": str(exc), "caption": caption(study)})
             continue
         rows.append({"run": label, "key": key, "value": value, "figures": figures(study, res.evaluations),
-                     "failed": sum(not e.ok for e in res.evaluations)})
+                     "failed": sum(not e.ok for e in res.evaluations), "caption": caption(study)})
     return rows
 
 
@@ -176,6 +176,7 @@ def plot_tornado(rows: Sequence[dict], path: Path) -> Path | None:
             vals = [(r["value"], *r["figures"].get(name, (math.nan, math.nan))) for r in rows[1:] if r["key"] == key]
             spans.append((key, vals))
         spans.sort(key=lambda kv: max((abs(v - b) for _, v, _ in kv[1] if math.isfinite(v)), default=0))
+        reach = [b]
         for i, (_key, vals) in enumerate(spans):
             finite = [(lab, v, se) for lab, v, se in vals if math.isfinite(v)]
             if not finite:
@@ -183,16 +184,44 @@ def plot_tornado(rows: Sequence[dict], path: Path) -> Path | None:
             # the bar runs from the baseline too, so a key tried at one value shows how far it moves the figure
             lo, hi = min(b, *(v for _, v, _ in finite)), max(b, *(v for _, v, _ in finite))
             ax.barh(i, hi - lo, left=lo, color="C0", alpha=0.5)
-            for lab, v, se in finite:
+            for j, (lab, v, se) in enumerate(sorted(finite, key=lambda f: f[1])):
                 ax.errorbar(v, i, xerr=None if math.isnan(se) else se, fmt="o", color="C0", capsize=3)
-                ax.annotate(str(lab), (v, i), textcoords="offset points", xytext=(0, 6), ha="center",
-                            fontsize=7)
+                # the lower value's label under its marker, the higher one's above: two values close to
+                # each other (a key that hardly moves the figure) would otherwise print over each other
+                ax.annotate(str(lab), (v, i), textcoords="offset points", xytext=(0, 6 if j % 2 else -6),
+                            ha="center", va="bottom" if j % 2 else "top", fontsize=7)
+                reach += [v - (0 if math.isnan(se) else se), v + (0 if math.isnan(se) else se)]
         ax.axvline(b, color="k", lw=0.8)
-        ax.margins(x=0.12)
+        lo, hi = min(reach, default=b), max(reach, default=b)
+        pad = 0.12 * (hi - lo) or 0.05 * abs(b) or 1.0  # markers and error bars clear of the frame
+        ax.set_xlim(lo - pad, hi + pad)
+        ax.set_ylim(-0.7, len(spans) - 0.3)
         ax.set_yticks(range(len(spans)), [k for k, _ in spans], fontsize=8)
         ax.set_title(name, fontsize=9)
     for ax in axes[len(names):]:
         ax.set_visible(False)
-    fig.suptitle("sensitivity: each key varied alone (black line: baseline)", fontsize=10)
+    fig.suptitle(_tornado_title(rows), fontsize=10)
     fig.savefig(path, dpi=120)
     return path
+
+
+def caption(study: Study) -> str:
+    """What a run's figures are over: its layout, phantoms and mesh (the tornado plot's title gives the
+    baseline's; a variant that changes one of them is named on its bar)."""
+    from ..captions import layout_caption
+    from .plots import _mesh_caption
+
+    if study.kind == "press":
+        t = study.phantoms[-1].touches[0]
+        what = (f"one press, r = {t.radius_mm:g} mm at ({t.x_mm:g}, {t.y_mm:g}) mm, figures at "
+                f"{t.depth_mm:g} mm deep")
+    else:
+        what = f"{len(study.phantoms)} phantoms per design"
+    return f"{layout_caption(study.designs)}; {what}\n{_mesh_caption(study).splitlines()[0]}"
+
+
+def _tornado_title(rows: Sequence[dict]) -> str:
+    from ..captions import wrap_title
+
+    first = "sensitivity: each key varied alone (black line: baseline)"
+    return wrap_title(f"{first}\n{rows[0]['caption']}" if rows[0].get("caption") else first, 120)
