@@ -9,13 +9,11 @@ from pathlib import Path
 from ..errors import ParameterError
 from ._common import (
     add_design_args,
+    check_mesh_args,
     check_output_path,
-    check_touch_count,
     design_from_args,
     emit_json,
     mesh_settings_from_args,
-    physics_from_args,
-    touches_from_args,
 )
 
 
@@ -42,8 +40,8 @@ def _interpolation(args):
 
 def run_density(args) -> int:
     """``simulate --density``: every input checked before meshing (module docstring)."""
-    from ..coupled import PhysicsSettings
     from ..density import DensityModel, load_density, save_density
+    from .simulate import simulate_inputs
 
     if args.density is None:
         raise ParameterError("--density", "a density file for --gradient, --interpolation and --plot", None)
@@ -55,12 +53,8 @@ def run_density(args) -> int:
             raise ParameterError("--plot", "--gradient too (the picture shows the gradient)", str(args.plot))
         check_output_path("--plot", args.plot, suffixes=(".png",))
     law = _interpolation(args)
-    check_touch_count(args)
-    design = design_from_args(args)
-    touches = touches_from_args(args, design)
-    given = {"indenter": args.indenter, "in_plane": args.in_plane, "punch_edge": args.punch_edge,
-             "sigma_S_per_m": args.sigma, "contact_impedance_ohm_m2": args.contact_impedance}
-    physics = PhysicsSettings(**{**given, **physics_from_args(args)})
+    check_mesh_args(args)
+    design, touches, physics = simulate_inputs(args)
     if physics.conductivity_law != "geometry":
         raise ParameterError("--physics conductivity_law", "'geometry' with --density", physics.conductivity_law)
     settings = mesh_settings_from_args(args)

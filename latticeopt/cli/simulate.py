@@ -55,21 +55,28 @@ def register(sub) -> None:
     p.set_defaults(func=run_simulate)
 
 
+def simulate_inputs(args):
+    """The design, touches and :class:`~latticeopt.coupled.PhysicsSettings` of simulate's options (also
+    ``--density``'s), each checked before any meshing: the dedicated options first, then any ``--physics``."""
+    from ..coupled import PhysicsSettings
+
+    check_touch_count(args)
+    design = design_from_args(args)
+    touches = touches_from_args(args, design)
+    given = {"indenter": args.indenter, "in_plane": args.in_plane, "punch_edge": args.punch_edge,
+             "sigma_S_per_m": args.sigma, "contact_impedance_ohm_m2": args.contact_impedance}
+    return design, touches, PhysicsSettings(**{**given, **physics_from_args(args)})
+
+
 def run_simulate(args) -> int:
-    from ..coupled import CoupledModel, PhysicsSettings
+    from ..coupled import CoupledModel
 
     if args.density is not None or args.gradient is not None or args.interpolation or args.plot is not None:
         from .density import run_density
 
         return run_density(args)
     check_mesh_args(args)
-    check_touch_count(args)
-    design = design_from_args(args)
-    touches = touches_from_args(args, design)
-    # the dedicated options first, then any --physics KEY=VALUE (checked here, before any meshing)
-    given = {"indenter": args.indenter, "in_plane": args.in_plane, "punch_edge": args.punch_edge,
-             "sigma_S_per_m": args.sigma, "contact_impedance_ohm_m2": args.contact_impedance}
-    physics = PhysicsSettings(**{**given, **physics_from_args(args)})
+    design, touches, physics = simulate_inputs(args)
     settings = mesh_settings_from_args(args)
     t0 = time.perf_counter()
     model = CoupledModel(design, settings, physics, cache_dir=False if args.no_cache else args.cache_dir)
