@@ -18,7 +18,7 @@ Conventions
 
 Defaults (documented choices, not measured on the paper's sensor)
 -----------------------------------------------------------------
-* ``sigma = 1 S/m``: LiCl polyacrylamide hydrogels conduct about 1-10 S/m (``shared/NOTES.md``); e.g. a
+* ``sigma = 1 S/m``: LiCl polyacrylamide hydrogels conduct about 1-10 S/m (reported ranges for such gels); e.g. a
   PAAm/cellulose/LiCl gel keeps 2.25 S/m even at -40 C (Chem. Eng. J. 2021, doi:10.1016/j.cej.2020.127306).
   The paper does not report its gel's conductivity; taking the low end is our assumption (its gel holds
   37 wt% ethylene glycol, which lowers ionic mobility).
