@@ -193,3 +193,19 @@ def test_sharp_jumps_become_grid_lines():
     assert grey[0] > 0 and grey[1] == 0
     nudged = density_mesh(LatticeDesign(thickness_mm=3.0), 32, MeshSettings(size_mm=8.0), np.clip(d + 1e-3, 0, 1))
     assert nudged.n_nodes == density_mesh(LatticeDesign(thickness_mm=3.0), 32, MeshSettings(size_mm=8.0), d).n_nodes
+
+
+def test_isolation_measure_flags_pieces_and_its_gradient_matches_differences(model):
+    rng = np.random.default_rng(4)
+    d = 0.2 + 0.6 * rng.random((N, N))
+    value, g = model.isolation(d)
+    direction = smooth_direction(11)
+    h = 1e-5
+    fd = (model.isolation(d + h * direction)[0] - model.isolation(d - h * direction)[0]) / (2 * h)
+    assert abs(np.sum(g * direction) - fd) <= 1e-5 * abs(fd)
+    assert model.isolation(np.ones((N, N)))[0] == pytest.approx(1.0, rel=1e-9)  # the uniform layer itself
+    pieces = np.zeros((N, N))
+    pieces[:, :3] = pieces[:, 5:] = 1.0  # a left and a right half, every electrode on gel, joined only by the floor
+    joined = pieces.copy()
+    joined[3:5, :] = 1.0  # a band across the middle: one network
+    assert model.isolation(pieces)[0] > 1e3 * model.isolation(joined)[0]

@@ -154,6 +154,30 @@ class DensityModel:
         sigma, dsigma = self.law.conductivity(rho, self.physics.sigma_S_per_m)
         return rho, (mu, kappa, sigma), (dmu, dkappa, dsigma)
 
+    def isolation(self, density: np.ndarray, p: float = 8.0) -> tuple[float, np.ndarray]:
+        """How far the untouched layout's measurements exceed the uniform layer's, and its gradient.
+
+        ``I = (mean_r (Vref_r / Vu_r)^p)^(1/p)`` over the measurement rows, ``Vu`` the uniform layer's (the whole
+        layer gel) reference voltages: about 1 for a connected network, huge when gel pieces are joined only by the
+        insulating floor (current between electrodes on separate pieces must cross silicone). A bound on it keeps
+        an optimized layout one network. Electrics only: no press, no extra solve.
+
+        Returns
+        -------
+        value : float
+        gradient : ndarray, shape (n, n)
+        """
+        if not hasattr(self, "_uniform_voltages"):
+            self._uniform_voltages = self.electrics.with_conductivity(self.physics.sigma_S_per_m).voltages
+        _, (_, _, sigma), (_, _, dsigma) = self.materials(density)
+        ref = self.electrics.with_conductivity(sigma)
+        q = ref.voltages / self._uniform_voltages  # same sign row by row (the same drive and measurement)
+        mean = float(np.mean(np.abs(q) ** p))
+        value = mean ** (1.0 / p)
+        weights = value ** (1.0 - p) * np.abs(q) ** (p - 1.0) * np.sign(q) / self._uniform_voltages / len(q)
+        d_sigma, _ = weighted_sensitivities(ref, weights)
+        return value, self._to_cells(d_sigma * dsigma)
+
     def evaluate(self, density: np.ndarray, phantoms, gradient: bool = True,
                  warm: list[np.ndarray | None] | None = None) -> DensityEvaluation:
         """``V_rel``, force and stretch of ``density`` over ``phantoms`` (lists of touches), with gradients.

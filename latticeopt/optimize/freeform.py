@@ -46,6 +46,7 @@ class DensityStudyConfig:
     min_hydrogel_fraction: float = 0.0
     max_stretch: float | None = None
     algorithm: str = "LD_MMA"
+    max_isolation: float | None = None
 
     def __post_init__(self) -> None:
         from ..density.field import MAX_CELLS, MIN_CELLS
@@ -62,6 +63,8 @@ class DensityStudyConfig:
         if self.max_stretch is not None:
             set_(self, "max_stretch", v.real(f"{t}.max_stretch", self.max_stretch, lo=1.0, lo_open=True, hi=10.0))
         set_(self, "algorithm", v.choice(f"{t}.algorithm", self.algorithm, FREEFORM_ALGORITHMS))
+        if self.max_isolation is not None:
+            set_(self, "max_isolation", v.real(f"{t}.max_isolation", self.max_isolation, lo=1.0, hi=1e12))
         self._check(set_)
 
     def _check(self, set_) -> None:
@@ -83,6 +86,7 @@ class FreeformConfig(DensityStudyConfig):
 
     TABLE: ClassVar[str] = "freeform"
     max_hydrogel_fraction: float = 0.5
+    max_isolation: float | None = 1000.0
     min_feature_mm: float = 4.0
     pad_mm: float = 4.0
     start: float = 0.5
@@ -251,12 +255,21 @@ def optimize_density(design, phantoms: list, mesh_settings, physics, cfg, param,
                 grad[:] = ff.gradient(xv, beta, ev.dstretch_ddensity)
             return ev.stretch - cfg.max_stretch
 
+        def isolation_cap(xv, grad, beta=beta):
+            # log scale: the measure runs from 1 (the uniform layer) to 1e5 and more (pieces joined by the floor)
+            value, g = model.isolation(ff.density(xv, beta))
+            if grad.size:
+                grad[:] = ff.gradient(xv, beta, g) / value
+            return math.log(value / cfg.max_isolation)
+
         opt.set_min_objective(objective)
         opt.add_inequality_constraint(fraction_max, 1e-4)
         if cfg.min_hydrogel_fraction > 0:
             opt.add_inequality_constraint(fraction_min, 1e-4)
         if cfg.max_stretch is not None:
             opt.add_inequality_constraint(stretch_cap, 1e-4)
+        if cfg.max_isolation is not None:
+            opt.add_inequality_constraint(isolation_cap, 1e-3)
         opt.set_maxeval(remaining)
         opt.set_xtol_rel(1e-6)  # MMA parked on its bounds otherwise repeats the same point until maxeval
         try:
