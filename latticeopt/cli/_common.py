@@ -213,30 +213,36 @@ def add_physics_arg(parser) -> None:
                              "keys: docs/studies.md")
 
 
+def key_value_options(items, flag: str, keys) -> dict:
+    """Repeated ``flag KEY=VALUE`` options as ``{KEY: value}``: TOML values, a bare word (flat, sphere) as a string;
+    a malformed item or a key not among ``keys`` is a one-line :class:`ParameterError` naming the flag."""
+    import tomllib
+
+    out = {}
+    for text in items:
+        key, sep, raw = str(text).partition("=")
+        key = key.strip()
+        if not sep or not key:
+            raise ParameterError(flag, "KEY=VALUE with KEY one of " + ", ".join(keys), text)
+        if key not in keys:
+            raise ParameterError(f"{flag} {key}", "a key among " + ", ".join(keys), key)
+        try:
+            out[key] = tomllib.loads(f"v = {raw.strip()}")["v"]
+        except tomllib.TOMLDecodeError:
+            out[key] = raw.strip()
+    return out
+
+
 def physics_from_args(args: argparse.Namespace) -> dict:
     """The ``--physics`` values as ``{key: value}``, each checked by :class:`latticeopt.coupled.PhysicsSettings`.
 
     Called before any meshing. A malformed item, an unknown key or a bad value raises
     :class:`~latticeopt.errors.ParameterError` named ``--physics KEY`` with the allowed values.
     """
-    import tomllib
-
     from ..coupled import PhysicsSettings
     from ..study.settings import PHYSICS_KEYS
 
-    out = {}
-    for text in getattr(args, "physics", None) or []:
-        key, sep, raw = str(text).partition("=")
-        key = key.strip()
-        if not sep or not key:
-            raise ParameterError("--physics", "KEY=VALUE with KEY one of " + ", ".join(PHYSICS_KEYS), text)
-        if key not in PHYSICS_KEYS:
-            raise ParameterError(f"--physics {key}", "a key among " + ", ".join(PHYSICS_KEYS), key)
-        try:
-            value = tomllib.loads(f"v = {raw.strip()}")["v"]
-        except tomllib.TOMLDecodeError:
-            value = raw.strip()  # a bare word (flat, sphere): a string
-        out[key] = value
+    out = key_value_options(getattr(args, "physics", None) or [], "--physics", PHYSICS_KEYS)
     resolved = PhysicsSettings.from_dict(out, name="--physics", key_name="--physics {key}")
     return {k: getattr(resolved, k) for k in out}
 

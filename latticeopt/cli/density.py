@@ -13,29 +13,22 @@ from ._common import (
     check_output_path,
     design_from_args,
     emit_json,
+    key_value_options,
     mesh_settings_from_args,
 )
 
 
 def _interpolation(args):
-    import tomllib
+    import dataclasses
 
     from ..density import InterpolationLaw
 
-    values = {}
-    for text in args.interpolation:
-        key, sep, raw = str(text).partition("=")
-        try:
-            values[key.strip()] = tomllib.loads(f"v = {raw.strip()}")["v"] if sep else None
-        except tomllib.TOMLDecodeError:
-            raise ParameterError(f"--interpolation {key.strip()}", "KEY=VALUE with a number as VALUE", text) from None
-        if not sep:
-            raise ParameterError("--interpolation", "KEY=VALUE", text)
+    keys = [f.name for f in dataclasses.fields(InterpolationLaw)]
+    values = key_value_options(args.interpolation, "--interpolation", keys)
     try:
         return InterpolationLaw.from_dict(values)
     except ParameterError as exc:
-        raise ParameterError(f"--interpolation {exc.name}" if exc.name != "interpolation" else "--interpolation",
-                             exc.expected, exc.got) from None
+        raise ParameterError(f"--interpolation {exc.name}", exc.expected, exc.got) from None
 
 
 def run_density(args) -> int:
