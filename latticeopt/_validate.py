@@ -50,3 +50,16 @@ def choice(name: str, value: object, allowed: Iterable[str]) -> str:
     if not isinstance(value, str) or value not in allowed:
         raise ParameterError(name, "one of " + ", ".join(repr(a) for a in allowed), value)
     return value
+
+
+def from_table(cls, values, unknown_name: str):
+    """The frozen dataclass ``cls`` built from a table of its fields; an unknown key is a :class:`ParameterError`
+    named ``unknown_name`` (``{key}`` is replaced by the key) that lists the valid ones."""
+    import dataclasses
+
+    values = dict(values or {})
+    valid = [f.name for f in dataclasses.fields(cls)]
+    unknown = sorted(set(values) - set(valid))
+    if unknown:
+        raise ParameterError(unknown_name.format(key=unknown[0]), "a key among " + ", ".join(valid), unknown[0])
+    return cls(**values)

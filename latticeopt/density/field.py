@@ -105,14 +105,7 @@ class InterpolationLaw:
 
     @classmethod
     def from_dict(cls, values: dict | None) -> InterpolationLaw:
-        import dataclasses
-
-        values = dict(values or {})
-        valid = [f.name for f in dataclasses.fields(cls)]
-        unknown = sorted(set(values) - set(valid))
-        if unknown:
-            raise ParameterError("interpolation", "keys among " + ", ".join(valid), unknown[0])
-        return cls(**values)
+        return v.from_table(cls, values, "interpolation")
 
     def modulus(self, rho: np.ndarray, silicone: float, gel: float) -> tuple[np.ndarray, np.ndarray]:
         """Modulus and its derivative in ``rho`` for moduli ``silicone`` (rho = 0) and ``gel`` (rho = 1)."""

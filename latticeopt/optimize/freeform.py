@@ -17,7 +17,7 @@ import logging
 import math
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import ClassVar
 
@@ -72,12 +72,7 @@ class DensityStudyConfig:
 
     @classmethod
     def from_dict(cls, values: dict | None):
-        values = dict(values or {})
-        valid = [f.name for f in fields(cls)]
-        unknown = sorted(set(values) - set(valid))
-        if unknown:
-            raise ParameterError(f"{cls.TABLE}.{unknown[0]}", "a key among " + ", ".join(valid), unknown[0])
-        return cls(**values)
+        return v.from_table(cls, values, cls.TABLE + ".{key}")
 
 
 @dataclass(frozen=True)
