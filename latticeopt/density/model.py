@@ -132,6 +132,7 @@ class DensityModel:
         self.mesh = density_mesh(design, self.n, mesh_settings,
                                  None if sharp_from is None else check_density(sharp_from, "sharp_from"))
         self.cells, self.layer_tets = cell_matrix(self.mesh, self.n)
+        self._layer_volumes = np.abs(self.mesh.tet_volumes_mm3()[self.layer_tets])  # the stretch measure's weights
         indent = self.physics.indent_settings()
         m = indent.materials
         self._ends = {"mu": (m.silicone.mu_MPa, m.hydrogel.mu_MPa),
@@ -167,14 +168,13 @@ class DensityModel:
         value : float
         gradient : ndarray, shape (n, n)
         """
-        if not hasattr(self, "_uniform_voltages"):
-            self._uniform_voltages = self.electrics.with_conductivity(self.physics.sigma_S_per_m).voltages
         _, (_, _, sigma), (_, _, dsigma) = self.materials(density)
         ref = self.electrics.with_conductivity(sigma)
-        q = ref.voltages / self._uniform_voltages  # same sign row by row (the same drive and measurement)
+        uniform = self.electrics.voltages  # the model's own electrics: the whole layer gel
+        q = ref.voltages / uniform  # same sign row by row (the same drive and measurement)
         mean = float(np.mean(np.abs(q) ** p))
         value = mean ** (1.0 / p)
-        weights = value ** (1.0 - p) * np.abs(q) ** (p - 1.0) * np.sign(q) / self._uniform_voltages / len(q)
+        weights = value ** (1.0 - p) * np.abs(q) ** (p - 1.0) * np.sign(q) / uniform / len(q)
         d_sigma, _ = weighted_sensitivities(ref, weights)
         return value, self._to_cells(d_sigma * dsigma)
 
@@ -198,7 +198,7 @@ class DensityModel:
         ref = self.electrics.with_conductivity(sigma)
         v_ref = ref.voltages
         w_stretch = np.zeros(self.mesh.n_tets)
-        w_stretch[self.layer_tets] = rho * np.abs(self.mesh.tet_volumes_mm3()[self.layer_tets])
+        w_stretch[self.layer_tets] = rho * self._layer_volumes
         presses = []
         for k, touches in enumerate(phantoms):
             touches = [t if isinstance(t, Touch) else Touch(*t) for t in touches]
@@ -260,7 +260,7 @@ class DensityModel:
         s_mu, s_kappa = moduli_sensitivity(st.op, u, np.stack([lam, y, lam_s]))
         mechanics, dforce, dstretch_m = (self._to_cells(s_mu[k, lt] * dmu + s_kappa[k, lt] * dkappa) for k in range(3))
         mechanics = -mechanics
-        dstretch = self._to_cells(dS_dw[lt] * np.abs(self.mesh.tet_volumes_mm3()[lt])) - dstretch_m
+        dstretch = self._to_cells(dS_dw[lt] * self._layer_volumes) - dstretch_m
         t3 = time.perf_counter()
         after = solver.linear_counts
         counts.update(adjoint_krylov_iterations=after["krylov_iterations"] - before["krylov_iterations"],
