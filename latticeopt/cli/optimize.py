@@ -66,10 +66,11 @@ def run_optimize_command(args: argparse.Namespace) -> int:
     from ..optimize.categories import write_summary
 
     check_study_file(args.study)
+    from ..optimize.freeform_study import is_density_study
     from ..optimize.load import read_study_table
 
     raw, keys = read_study_table(args.study, study_overrides(args) + physics_overrides(args))
-    if raw.get("kind") in ("freeform", "graded"):
+    if is_density_study(raw):
         return _run_density_study(args, raw, keys)
     runs = load_categories(args.study, study_overrides(args) + physics_overrides(args))
     check_parallel_args(args)

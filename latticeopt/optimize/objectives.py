@@ -239,11 +239,6 @@ class Objective:
     def _terms(self, random_v: np.ndarray, probe_v: np.ndarray, probe_cc: np.ndarray) -> dict:
         return {k: TERMS[k].value(self, random_v, probe_v, probe_cc) for k, _ in self.weights}
 
-    @property
-    def differentiable(self) -> bool:
-        """Every weighted term has an adjoint gradient (not ``image_cc``)."""
-        return all(TERMS[k].gradient is not None for k, _ in self.weights)
-
     def gradient(self, random_v, probe_v, random_grads, probe_grads):
         """Gradient of the score with respect to a layout, from per-phantom values and gradients.
 
