@@ -30,8 +30,8 @@ for _var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
 import numpy as np  # noqa: E402
 
 from latticeopt import LatticeDesign, MeshSettings  # noqa: E402
-from latticeopt.cli._common import add_physics_arg, physics_from_args  # noqa: E402
-from latticeopt.coupled import CoupledModel, PhysicsSettings  # noqa: E402
+from latticeopt.cli._common import add_physics_arg, physics_settings, physics_values  # noqa: E402
+from latticeopt.coupled import CoupledModel  # noqa: E402
 from latticeopt.errors import ParameterError  # noqa: E402
 from latticeopt.study.phantoms import Phantom, random_phantom  # noqa: E402
 from latticeopt.touches import Touch  # noqa: E402
@@ -83,7 +83,7 @@ def main() -> None:
     add_physics_arg(ap)
     a = ap.parse_args()
     try:
-        physics = PhysicsSettings.from_dict(physics_from_args(a))
+        physics = physics_settings(a)
     except ParameterError as exc:
         ap.error(str(exc))
     levels = a.levels or [settings_for(size) for size in a.sizes]
@@ -92,7 +92,7 @@ def main() -> None:
     if a.press:
         phantoms.insert(0, Phantom((Touch(50.0, 50.0, 8.75, 4.0),), index=0))
     print(f"load average: {os.getloadavg()[0]:.2f}; {design.describe()}; {a.phantoms} phantoms"
-          + (f"; physics {physics_from_args(a)}" if a.physics else ""))
+          + (f"; physics {physics_values(a)}" if a.physics else ""))
     print("| size mm | channel cells | layer cells | electrode-edge lines | nodes | mean V_rel | change of mean | "
           "per-phantom change | s/phantom |")
     print("|---|---|---|---|---|---|---|---|---|")

@@ -22,8 +22,8 @@ for _var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 from latticeopt import LatticeDesign, MeshSettings  # noqa: E402
-from latticeopt.cli._common import add_physics_arg, physics_from_args  # noqa: E402
-from latticeopt.coupled import CoupledModel, PhysicsSettings  # noqa: E402
+from latticeopt.cli._common import add_physics_arg, physics_settings  # noqa: E402
+from latticeopt.coupled import CoupledModel  # noqa: E402
 from latticeopt.errors import ConvergenceError  # noqa: E402
 from latticeopt.study.config import load_study  # noqa: E402
 
@@ -49,7 +49,7 @@ def main(argv=None) -> None:
     logging.basicConfig(level=logging.DEBUG if args.v else logging.WARNING, format="%(message)s")
     for name in ("numba", "matplotlib", "latticeopt.mesh", "latticeopt.electrics", "latticeopt.coupled"):
         logging.getLogger(name).setLevel(logging.WARNING)
-    physics = PhysicsSettings.from_dict(physics_from_args(args))
+    physics = physics_settings(args)
     phantoms = paper_phantoms()
     keys = [tuple(int(x) for x in p.split(":")) for p in args.phantoms]
     deepest = sorted(phantoms, key=lambda k: -max(t.depth_mm for t in phantoms[k].touches))

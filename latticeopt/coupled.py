@@ -29,6 +29,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -142,7 +143,8 @@ class PhysicsSettings:
             set_(self, nu, law.poisson_ratio)
 
     @classmethod
-    def from_dict(cls, values: dict | None, *, name: str = "physics", key_name: str = "{key}") -> PhysicsSettings:
+    def from_dict(cls, values: dict | None, *, name: str = "physics",
+                  key_name: str | Callable[[str], str] = "{key}") -> PhysicsSettings:
         """Validate a ``[physics]`` table (any subset of the fields; the rest keep their defaults).
 
         The one check of a ``[physics]`` table: studies (:class:`latticeopt.study.settings.EvalSettings`), the
@@ -156,7 +158,7 @@ class PhysicsSettings:
             What an unknown key is reported under.
         key_name
             What a bad value is reported under, ``{key}`` standing for its key (``"physics.{key}"`` in a study,
-            ``"--physics {key}"`` on the command line).
+            ``"--physics {key}"`` on the command line), or a function of the key (values from several flags).
         """
         values = dict(values or {})
         valid = [f.name for f in dataclasses.fields(cls)]
@@ -167,7 +169,8 @@ class PhysicsSettings:
             return cls(**values)
         except ParameterError as exc:
             got = values.get(exc.name, exc.got)
-            raise ParameterError(key_name.format(key=exc.name), exc.expected, got) from None
+            named = key_name(exc.name) if callable(key_name) else key_name.format(key=exc.name)
+            raise ParameterError(named, exc.expected, got) from None
 
     def indent_settings(self) -> IndentSettings:
         materials = Materials(silicone=NeoHookean(self.silicone_shear_kPa, self.silicone_poisson_ratio),

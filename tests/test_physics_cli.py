@@ -63,19 +63,52 @@ def test_indent_takes_physics_keys(capsys):
     assert stiff["forces_N"][0] > 1.5 * base["forces_N"][0]
 
 
-def test_sweep_maps_physics_onto_set(capsys, tmp_path):
-    from latticeopt.cli._common import physics_overrides
+def test_sweep_physics_goes_into_the_study_table_as_values(capsys, tmp_path):
+    from latticeopt.cli._common import physics_values
     from latticeopt.study.config import load_study
 
     class Args:
         physics = ["hydrogel_poisson_ratio=0.4999", "indenter=sphere"]
 
-    overrides = physics_overrides(Args())
-    assert overrides == ['physics.hydrogel_poisson_ratio=0.4999', 'physics.indenter="sphere"']
-    study = load_study("studies/quick.toml", overrides)
+    values = physics_values(Args())
+    assert values == {"hydrogel_poisson_ratio": 0.4999, "indenter": "sphere"}
+    study = load_study("studies/quick.toml", physics=values)
     assert study.settings.physics == {"hydrogel_poisson_ratio": 0.4999, "indenter": "sphere"}
+    assert study.settings.physics_settings.indenter == "sphere"
     assert main(["sweep", "studies/quick.toml", "--dry-run", "--physics", "hydrogel_poisson_ratio=0.4999",
                  "--out", str(tmp_path)]) == 0
+
+
+def test_physics_is_checked_once_by_the_study_and_named_by_its_flag(monkeypatch, capsys):
+    """The one check of a study's [physics] is PhysicsSettings.from_dict inside EvalSettings: the CLI hands the
+    parsed values over unchecked, and the loader names a bad one after the flag that gave it."""
+    from latticeopt.coupled import PhysicsSettings
+
+    calls = []
+    real = PhysicsSettings.from_dict.__func__
+
+    def counting(cls, values, **kw):
+        calls.append(dict(values or {}))
+        return real(cls, values, **kw)
+
+    monkeypatch.setattr(PhysicsSettings, "from_dict", classmethod(counting))
+    assert main(["sweep", "studies/quick.toml", "--dry-run", "--physics", "hydrogel_poisson_ratio=0.45"]) == 0
+    assert [c for c in calls if c.get("hydrogel_poisson_ratio") == 0.45] == [{"hydrogel_poisson_ratio": 0.45}]
+    capsys.readouterr()
+    for command in (["sweep", "studies/quick.toml", "--dry-run"], ["sensitivity", "studies/sensitivity_press.toml",
+                                                                   "--vary", "hydrogel_shear_kPa=2,15", "--dry-run"],
+                    ["optimize", "studies/optimize_square.toml", "--dry-run"],
+                    ["optimize", "studies/optimize_freeform.toml", "--dry-run"]):
+        assert main([*command, "--physics", "hydrogel_poisson_ratio=0.5"]) == 2
+        err = capsys.readouterr().err
+        assert "--physics hydrogel_poisson_ratio" in err and "got 0.5" in err, (command, err)
+        assert "Traceback" not in err and "--set" not in err
+
+
+def test_a_bad_dedicated_option_is_named_by_its_own_flag(capsys):
+    assert main(["simulate", "--touch", "25,25,7.5,1", "--sigma", "-1", "--mesh-size", "8"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--sigma" in err and "--physics" not in err
 
 
 def test_sensitivity_physics_sets_every_runs_baseline(monkeypatch, capsys):
@@ -85,8 +118,8 @@ def test_sensitivity_physics_sets_every_runs_baseline(monkeypatch, capsys):
     seen = {}
     real = sens.load_variants
 
-    def record(path, variations, overrides):
-        seen["runs"] = real(path, variations, overrides)
+    def record(path, variations, overrides, physics):
+        seen["runs"] = real(path, variations, overrides, physics)
         raise ParameterError("stop", "the test to stop before running", "here")
 
     monkeypatch.setattr(sens, "load_variants", record)

@@ -59,12 +59,12 @@ def test_each_entry_names_a_bad_value_its_own_way():
         EvalSettings(physics_items=(("sigma", 1),))
     with pytest.raises(ParameterError, match=r"^coarse_physics\.mechanics_rtol: "):
         MultilevelSettings(coarse_physics={"mechanics_rtol": 2})
-    from latticeopt.cli._common import physics_from_args
+    from latticeopt.cli._common import physics_settings
 
     with pytest.raises(ParameterError, match=r"^--physics indenter: "):
-        physics_from_args(argparse.Namespace(physics=["indenter=cone"]))
-    assert physics_from_args(argparse.Namespace(physics=["sigma_S_per_m=2", "indenter=sphere"])) == \
-        {"sigma_S_per_m": 2.0, "indenter": "sphere"}
+        physics_settings(argparse.Namespace(physics=["indenter=cone"]))
+    resolved = physics_settings(argparse.Namespace(physics=["sigma_S_per_m=2", "indenter=sphere"]))
+    assert (resolved.sigma_S_per_m, resolved.indenter) == (2.0, "sphere")
 
 
 def test_the_coarse_level_merges_its_keys_into_the_fine_table():

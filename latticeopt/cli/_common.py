@@ -6,6 +6,7 @@ import argparse
 import contextlib
 import json
 import sys
+from collections.abc import Mapping
 from pathlib import Path
 
 from ..design import PATTERNS, RIMS, LatticeDesign, design_from_table
@@ -233,24 +234,36 @@ def key_value_options(items, flag: str, keys) -> dict:
     return out
 
 
-def physics_from_args(args: argparse.Namespace) -> dict:
-    """The ``--physics`` values as ``{key: value}``, each checked by :class:`latticeopt.coupled.PhysicsSettings`.
+def physics_values(args: argparse.Namespace) -> dict:
+    """The ``--physics`` values as ``{key: value}``: known keys, values parsed but not yet checked.
 
-    Called before any meshing. A malformed item, an unknown key or a bad value raises
-    :class:`~latticeopt.errors.ParameterError` named ``--physics KEY`` with the allowed values.
+    Study commands (sweep, optimize, sensitivity) hand them to the study loader
+    (:func:`latticeopt.study.config.read_study_table`), whose one check of the merged ``[physics]`` table names a
+    bad value ``--physics KEY``; the others build :func:`physics_settings`. A malformed item or an unknown key
+    raises :class:`~latticeopt.errors.ParameterError` here.
     """
-    from ..coupled import PhysicsSettings
     from ..study.settings import PHYSICS_KEYS
 
-    out = key_value_options(getattr(args, "physics", None) or [], "--physics", PHYSICS_KEYS)
-    resolved = PhysicsSettings.from_dict(out, name="--physics", key_name="--physics {key}")
-    return {k: getattr(resolved, k) for k in out}
+    return key_value_options(getattr(args, "physics", None) or [], "--physics", PHYSICS_KEYS)
 
 
-def physics_overrides(args: argparse.Namespace) -> list[str]:
-    """``--physics KEY=VALUE`` as the study overrides ``physics.KEY=VALUE`` (sweep, optimize, sensitivity),
-    checked first."""
-    return [f"physics.{k}={json.dumps(v)}" for k, v in physics_from_args(args).items()]
+def physics_settings(args: argparse.Namespace, given: Mapping[str, tuple[str, object]] | None = None):
+    """A command's :class:`latticeopt.coupled.PhysicsSettings`: its dedicated options updated by ``--physics``,
+    checked once, before any meshing.
+
+    Parameters
+    ----------
+    given
+        ``{[physics] key: (flag, value)}`` of the command's own options (``{"indenter": ("--indenter", "flat")}``);
+        a bad one is named by its flag, a bad ``--physics`` value ``--physics KEY``.
+    """
+    from ..coupled import PhysicsSettings
+
+    given = dict(given or {})
+    values = physics_values(args)
+    flags = {k: flag for k, (flag, _) in given.items() if k not in values}
+    return PhysicsSettings.from_dict({**{k: v for k, (_, v) in given.items()}, **values}, name="--physics",
+                                     key_name=lambda key: flags.get(key, f"--physics {key}"))
 
 
 # -- output paths checked before any work ------------------------------------------------------------------

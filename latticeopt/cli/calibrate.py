@@ -15,7 +15,8 @@ from ._common import (
     check_output_path,
     emit_json,
     mesh_settings_from_args,
-    physics_from_args,
+    physics_settings,
+    physics_values,
 )
 
 #: What ``calibrate`` writes into ``--out``.
@@ -69,7 +70,8 @@ def run_calibrate(args: argparse.Namespace) -> int:
         raise ParameterError("--max-evals", "an integer >= 1", args.max_evals)
     if args.profile_points < 0 or args.profile_points == 1:
         raise ParameterError("--profile-points", "0 (none) or an integer >= 2", args.profile_points)
-    physics = physics_from_args(args)
+    resolved = physics_settings(args)
+    physics = {k: getattr(resolved, k) for k in physics_values(args)}  # the keys given, checked
     clash = sorted(set(physics) & {q.name for q in params})
     if clash:
         raise ParameterError("--physics", "keys other than the fitted ones", clash[0])

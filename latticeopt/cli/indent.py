@@ -16,7 +16,8 @@ from ._common import (
     emit_json,
     mesh_from_args,
     mesh_settings_from_args,
-    physics_from_args,
+    physics_settings,
+    physics_values,
     touches_from_args,
     touches_named_by_flag,
 )
@@ -40,7 +41,6 @@ def register(sub) -> None:
 def run_indent(args) -> int:
     import dataclasses
 
-    from ..coupled import PhysicsSettings
     from ..mechanics import indent
 
     out = check_output_path("-o", args.output, suffixes=(".vtu",))
@@ -50,11 +50,11 @@ def run_indent(args) -> int:
     touches = touches_from_args(args, design)
     # the mechanics of the [physics] settings (materials, indenter); the standalone indentation keeps its own
     # tolerance unless --physics mechanics_rtol=... is given
-    physics = physics_from_args(args)
-    given = {"indenter": args.indenter, "in_plane": args.in_plane, "punch_edge": args.punch_edge}
-    settings = PhysicsSettings(**{**given, **physics}).indent_settings()
+    given = {"indenter": ("--indenter", args.indenter), "in_plane": ("--in-plane", args.in_plane),
+             "punch_edge": ("--punch-edge", args.punch_edge)}
+    settings = physics_settings(args, given).indent_settings()
     extra = {} if args.max_step is None else {"max_step_mm": args.max_step}
-    if "mechanics_rtol" not in physics:
+    if "mechanics_rtol" not in physics_values(args):
         extra["rtol"] = type(settings)().rtol
     settings = dataclasses.replace(settings, **extra)
     t0 = time.perf_counter()

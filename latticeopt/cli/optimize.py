@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 from ._common import (
     add_physics_arg,
     check_parallel_args,
     check_study_file,
     check_study_outputs,
-    physics_overrides,
+    physics_values,
     study_overrides,
 )
 
@@ -34,7 +35,7 @@ def register(sub) -> None:
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override a study key, dotted for tables, value in TOML syntax "
                         "(e.g. --set optimize.algorithm=LN_COBYLA --set optimize.max_evals=20); repeatable")
-    add_physics_arg(p)  # same as --set physics.KEY=VALUE, checked and named as --physics KEY
+    add_physics_arg(p)  # [physics] values merged into the study table, checked with it, named --physics KEY
     p.add_argument("--jobs", "-j", type=int, default=None,
                    help="worker processes for the phantoms of each design (default: the study's jobs)")
     p.add_argument("--backend", choices=("local", "dask"), default="local",
@@ -62,17 +63,18 @@ def _step_line(step) -> str:
 def run_optimize_command(args: argparse.Namespace) -> int:
 
     from ..errors import AllFailedError
-    from ..optimize import effective_bounds_text, load_categories, run_optimization
+    from ..optimize import effective_bounds_text, run_optimization
     from ..optimize.categories import write_summary
 
     check_study_file(args.study)
+    from ..optimize.categories import categorical_optimizations
     from ..optimize.freeform_study import is_density_study
-    from ..optimize.load import read_study_table
+    from ..study.config import read_study_table
 
-    raw, keys = read_study_table(args.study, study_overrides(args) + physics_overrides(args))
+    raw, keys = read_study_table(args.study, study_overrides(args), physics_values(args))
     if is_density_study(raw):
         return _run_density_study(args, raw, keys)
-    runs = load_categories(args.study, study_overrides(args) + physics_overrides(args))
+    runs = categorical_optimizations(raw, source=str(args.study), overridden=keys, default_name=Path(args.study).stem)
     check_parallel_args(args)
     for run in runs:
         check_study_outputs(args, run.optimization.study)

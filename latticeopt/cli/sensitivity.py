@@ -6,7 +6,7 @@ import argparse
 import math
 import sys
 
-from ._common import add_physics_arg, check_study_file, check_study_outputs, emit_json, physics_overrides
+from ._common import add_physics_arg, check_study_file, check_study_outputs, emit_json, physics_values
 
 
 def register(sub) -> None:
@@ -25,7 +25,7 @@ def register(sub) -> None:
                         "(a bare [physics] or design key is completed); repeatable")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override a study key for every run (as for sweep); repeatable")
-    add_physics_arg(p)  # every run's baseline [physics], as --set physics.KEY=VALUE
+    add_physics_arg(p)  # every run's baseline [physics], merged into the study table before the variants
     p.add_argument("--jobs", "-j", type=int, default=None, help="worker processes (default: the study's jobs)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.add_argument("--dry-run", action="store_true",
@@ -42,9 +42,8 @@ def run_sensitivity_command(args: argparse.Namespace) -> int:
     if args.jobs is not None and args.jobs < 1:
         raise ParameterError("--jobs", "an integer >= 1", args.jobs)
     variations = [parse_vary(t) for t in args.vary]
-    overrides = list(args.overrides) + physics_overrides(args)
     check_study_file(args.study)
-    runs = load_variants(args.study, variations, overrides)
+    runs = load_variants(args.study, variations, args.overrides, physics_values(args))
     for run in runs:
         check_study_outputs(args, run[3])
     root = runs[0][3].out_dir.parent

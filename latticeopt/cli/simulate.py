@@ -16,7 +16,7 @@ from ._common import (
     design_from_args,
     emit_json,
     mesh_settings_from_args,
-    physics_from_args,
+    physics_settings,
     sigma_help,
     touches_from_args,
     touches_named_by_flag,
@@ -58,14 +58,13 @@ def register(sub) -> None:
 def simulate_inputs(args):
     """The design, touches and :class:`~latticeopt.coupled.PhysicsSettings` of simulate's options (also
     ``--density``'s), each checked before any meshing: the dedicated options first, then any ``--physics``."""
-    from ..coupled import PhysicsSettings
-
     check_touch_count(args)
     design = design_from_args(args)
     touches = touches_from_args(args, design)
-    given = {"indenter": args.indenter, "in_plane": args.in_plane, "punch_edge": args.punch_edge,
-             "sigma_S_per_m": args.sigma, "contact_impedance_ohm_m2": args.contact_impedance}
-    return design, touches, PhysicsSettings(**{**given, **physics_from_args(args)})
+    given = {"indenter": ("--indenter", args.indenter), "in_plane": ("--in-plane", args.in_plane),
+             "punch_edge": ("--punch-edge", args.punch_edge), "sigma_S_per_m": ("--sigma", args.sigma),
+             "contact_impedance_ohm_m2": ("--contact-impedance", args.contact_impedance)}
+    return design, touches, physics_settings(args, given)
 
 
 def run_simulate(args) -> int:

@@ -9,7 +9,7 @@ from ._common import (
     check_parallel_args,
     check_study_file,
     check_study_outputs,
-    physics_overrides,
+    physics_values,
     study_overrides,
 )
 
@@ -28,7 +28,7 @@ def register(sub) -> None:
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override a study key; dotted for tables, value in TOML syntax "
                         "(e.g. --set mesh.size_mm=3 --set grid.width_mm=[0,4]); repeatable")
-    add_physics_arg(p)  # same as --set physics.KEY=VALUE, checked and named as --physics KEY
+    add_physics_arg(p)  # [physics] values merged into the study table, checked with it, named --physics KEY
     p.add_argument("--jobs", "-j", type=int, default=None, help="worker processes (default: the study's jobs)")
     p.add_argument("--backend", choices=("local", "dask"), default="local",
                    help="local processes (default) or a dask.distributed cluster")
@@ -53,7 +53,7 @@ def run_sweep_command(args: argparse.Namespace) -> int:
     from ..study.walltime import wall_time
 
     check_study_file(args.study)
-    study = load_study(args.study, study_overrides(args) + physics_overrides(args))
+    study = load_study(args.study, study_overrides(args), physics_values(args))
     check_parallel_args(args)
     check_study_outputs(args, study)
     if args.dry_run:

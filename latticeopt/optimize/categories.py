@@ -24,6 +24,7 @@ from pathlib import Path
 
 from ..design import PATTERNS, RIMS
 from ..errors import ParameterError
+from ..study.keynames import KeyNames
 from .load import optimization_from_dict
 from .problem import Optimization
 
@@ -47,7 +48,8 @@ def _label(values: Mapping[str, object]) -> str:
     return "_".join(f"{k}-{str(v).lower()}" for k, v in values.items())
 
 
-def categorical_optimizations(raw: Mapping, *, source: str = "<dict>", overridden: Sequence[str] = (),
+def categorical_optimizations(raw: Mapping, *, source: str = "<dict>",
+                              overridden: Mapping[str, str] | Sequence[str] = (),
                               default_name: str = "optimize") -> tuple[CategoryRun, ...]:
     """Validate an optimization study, one :class:`CategoryRun` per combination of ``[optimize.categories]``.
 
@@ -56,7 +58,7 @@ def categorical_optimizations(raw: Mapping, *, source: str = "<dict>", overridde
     raw = copy.deepcopy(dict(raw))
     tab = raw.get("optimize")
     cats = tab.pop("categories", None) if isinstance(tab, dict) else None
-    name = lambda key: f"--set {key}" if key in overridden else f"{source}: {key}"  # noqa: E731
+    name = KeyNames(source, overridden)
     if cats is None:
         opt = optimization_from_dict(raw, source=source, overridden=overridden, default_name=default_name)
         return (CategoryRun("", (), opt),)

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..errors import ParameterError
+from ..study.keynames import KeyNames
 from .freeform import FreeformConfig
 from .graded import GradedConfig
 
@@ -40,15 +41,15 @@ def is_density_study(raw: Mapping) -> bool:
     return raw.get("kind") in KINDS
 
 
-def freeform_from_dict(raw: Mapping, source: str, overridden: Sequence[str] = ()) -> FreeformStudy:
+def freeform_from_dict(raw: Mapping, source: str, overridden: Mapping[str, str] | Sequence[str] = ()
+                       ) -> FreeformStudy:
     from ..coupled import PhysicsSettings
     from ..design import design_from_table
     from ..mesh import MeshSettings
     from ..study.phantoms import random_phantoms
     from ..touches import validate_touches
 
-    def name(key: str) -> str:
-        return f"--set {key}" if any(key == k or key.startswith(k + ".") for k in overridden) else f"{source}: {key}"
+    name = KeyNames(source, overridden)
 
     def rename(exc: ParameterError, table: str) -> ParameterError:
         key = exc.name if exc.name.startswith(table + ".") else f"{table}.{exc.name}"

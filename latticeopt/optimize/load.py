@@ -6,14 +6,13 @@ Errors name the file and dotted key (or ``--set key``), what was expected and wh
 from __future__ import annotations
 
 import numbers
-import tomllib
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 
 from ..design import LatticeDesign
 from ..errors import ParameterError
-from ..study.config import apply_overrides, study_from_dict
+from ..study.config import read_study_table, study_from_dict
+from ..study.keynames import KeyNames
 from ..touches import validate_touches
 from .config import CONTINUOUS_FIELDS, Constraints, OptimizeConfig, Variable
 from .objectives import TERMS, Objective
@@ -31,33 +30,13 @@ _UNIFORMITY_KEYS = ("grid", "radius_mm", "depth_mm")
 _IMAGE_KEYS = {"prior": "image_prior", "lambda": "image_lambda"}
 
 
-@dataclass(frozen=True)
-class _Namer:
-    source: str
-    overridden: frozenset[str]
-
-    def __call__(self, key: str) -> str:
-        parts = key.split(".")
-        if any(".".join(parts[:i]) in self.overridden for i in range(len(parts), 0, -1)):
-            return f"--set {key}"
-        return f"{self.source}: {key}"
-
-    def known(self, table: object, allowed: Sequence[str], key: str) -> dict:
-        if not isinstance(table, Mapping):
-            raise ParameterError(self(key), "a table", table)
-        for k in table:
-            if k not in allowed:
-                raise ParameterError(self(f"{key}.{k}"), "a known key: one of " + ", ".join(allowed), k)
-        return dict(table)
-
-
 def _number(name: str, value: object) -> float:
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
         raise ParameterError(name, "a number", value)
     return float(value)
 
 
-def _variables(nm: _Namer, raw: object, design: dict) -> tuple[Variable, ...]:
+def _variables(nm: KeyNames, raw: object, design: dict) -> tuple[Variable, ...]:
     table = nm.known(raw, CONTINUOUS_FIELDS, "optimize.variables")
     out, defaults = [], LatticeDesign()
     for name, spec in table.items():
@@ -81,7 +60,7 @@ def _variables(nm: _Namer, raw: object, design: dict) -> tuple[Variable, ...]:
     return tuple(out)
 
 
-def _objective(nm: _Namer, tab: dict) -> Objective:
+def _objective(nm: KeyNames, tab: dict) -> Objective:
     raw = tab.get("objective", "mean")
     if isinstance(raw, str):
         if raw not in TERMS:
@@ -107,10 +86,11 @@ def _objective(nm: _Namer, tab: dict) -> Objective:
         raise ParameterError(nm(key), exc.expected, exc.got) from None
 
 
-def optimization_from_dict(raw: Mapping, *, source: str = "<dict>", overridden: Sequence[str] = (),
+def optimization_from_dict(raw: Mapping, *, source: str = "<dict>",
+                           overridden: Mapping[str, str] | Sequence[str] = (),
                            default_name: str = "optimize") -> Optimization:
     """Validate a parsed optimization study (see the module docstring)."""
-    nm = _Namer(source, frozenset(overridden))
+    nm = KeyNames(source, overridden)
     raw = dict(raw)
     if "optimize" not in raw:
         raise ParameterError(nm("optimize"), "an [optimize] table (with [optimize.variables])", None)
@@ -155,21 +135,11 @@ def optimization_from_dict(raw: Mapping, *, source: str = "<dict>", overridden: 
     return Optimization(study=study, config=config, problem=problem, probes=probes)
 
 
-def read_study_table(path: str | Path, overrides: Sequence[str] = ()) -> tuple[dict, list[str]]:
-    """The TOML table of a study file with ``--set`` overrides applied, and the keys they set."""
-    p = Path(path)
-    try:
-        raw = tomllib.loads(p.read_text())
-    except OSError as exc:
-        raise ParameterError("STUDY", "a readable TOML study file", f"{p} ({exc.strerror})") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ParameterError(str(p), "valid TOML", str(exc)) from None
-    return apply_overrides(raw, overrides)
-
-
-def load_optimization(path: str | Path, overrides: Sequence[str] = ()) -> Optimization:
-    """Read, override (``--set`` strings) and validate an optimization study file (no categories)."""
-    raw, keys = read_study_table(path, overrides)
+def load_optimization(path: str | Path, overrides: Sequence[str] = (), physics: Mapping[str, object] | None = None
+                      ) -> Optimization:
+    """Read, override (``--set`` strings, ``--physics`` values) and validate an optimization study file (no
+    categories)."""
+    raw, keys = read_study_table(path, overrides, physics)
     if isinstance(raw.get("optimize"), Mapping) and "categories" in raw["optimize"]:
         raise ParameterError(f"{path}: optimize.categories", "no categories here: load the study with "
                              "latticeopt.optimize.load_categories (one optimization per combination)",
@@ -177,10 +147,11 @@ def load_optimization(path: str | Path, overrides: Sequence[str] = ()) -> Optimi
     return optimization_from_dict(raw, source=str(path), overridden=keys, default_name=Path(path).stem)
 
 
-def load_categories(path: str | Path, overrides: Sequence[str] = ()):
+def load_categories(path: str | Path, overrides: Sequence[str] = (), physics: Mapping[str, object] | None = None):
     """Read an optimization study: one :class:`~latticeopt.optimize.categories.CategoryRun` per combination of
-    its ``[optimize.categories]`` (a single run without them)."""
+    its ``[optimize.categories]`` (a single run without them). ``overrides`` and ``physics`` as in
+    :func:`latticeopt.study.config.read_study_table`."""
     from .categories import categorical_optimizations
 
-    raw, keys = read_study_table(path, overrides)
+    raw, keys = read_study_table(path, overrides, physics)
     return categorical_optimizations(raw, source=str(path), overridden=keys, default_name=Path(path).stem)

@@ -8,13 +8,13 @@ import itertools
 import json
 import numbers
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
 
 from .. import _validate as v
 from ..design import DESIGN_FIELDS, TABLE_KEYS, LatticeDesign, design_from_table
 from ..errors import ParameterError
 from ..mesh import MeshSettings
 from ..touches import validate_touches
+from .keynames import KeyNames as _Where
 from .phantoms import MAX_TOUCHES, Comparison, Phantom, PressSeries, RandomPhantoms
 from .settings import AdaptiveSettings, MultilevelSettings
 
@@ -26,28 +26,6 @@ def _string(name: str, value: object) -> str:
 
 
 # -- tables ------------------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class _Where:
-    """Names a key in error messages: ``file: key`` or ``--set key``."""
-
-    source: str
-    overridden: frozenset[str] = frozenset()
-
-    def name(self, key: str) -> str:
-        parts = key.split(".")
-        for i in range(len(parts), 0, -1):
-            if ".".join(parts[:i]) in self.overridden:
-                return f"--set {key}"
-        return f"{self.source}: {key}"
-
-    def error(self, key: str, expected: str, got: object) -> ParameterError:
-        return ParameterError(self.name(key), expected, got)
-
-    def wrap(self, key: str, exc: ParameterError, context: str = "") -> ParameterError:
-        """Re-raise a dataclass's ParameterError under the study key it came from."""
-        return ParameterError(self.name(key), exc.expected + context, exc.got)
-
-
 _TOP = {"name": "study name (default: file stem)", "description": "free text", "kind": "'grid' or 'press'",
         "model": "'module:function' evaluating one phantom", "out": "output folder", "jobs": "worker processes",
         "cache_dir": "mesh/reference cache folder", "design": "table of fixed design fields",

@@ -45,11 +45,12 @@ from ._tables import (
     _table,
     _Where,
 )
+from .keynames import origins
 from .phantoms import Phantom, PressSeries, RandomPhantoms
 from .settings import DEFAULT_MODEL, PHYSICS_KEYS, AdaptiveSettings, EvalSettings, MultilevelSettings
 
 __all__ = ["DEFAULT_MODEL", "PHYSICS_KEYS", "STUDY_KINDS", "EvalSettings", "Study", "apply_overrides", "load_study",
-           "parse_override", "study_from_dict"]
+           "parse_override", "read_study_table", "set_key", "study_from_dict"]
 
 STUDY_KINDS = ("grid", "press")
 
@@ -108,7 +109,7 @@ class Study:
                 "designs": [d.as_dict() for d in self.designs]}
 
 
-def study_from_dict(raw: Mapping, *, source: str = "<dict>", overridden: Sequence[str] = (),
+def study_from_dict(raw: Mapping, *, source: str = "<dict>", overridden: Mapping[str, str] | Sequence[str] = (),
                     default_name: str = "study") -> Study:
     """Validate a parsed study table (see the module docstring) into a :class:`Study`.
 
@@ -119,11 +120,12 @@ def study_from_dict(raw: Mapping, *, source: str = "<dict>", overridden: Sequenc
     source
         Where it came from, for error messages.
     overridden
-        Dotted keys set from the command line (errors then name ``--set key``).
+        Keys set on the command line: ``{dotted key: flag}`` as :func:`read_study_table` returns (errors then
+        name the flag, e.g. ``--physics KEY``), or a sequence of dotted keys (named ``--set key``).
     default_name
         Name used when the table has none.
     """
-    where = _Where(source, frozenset(overridden))
+    where = _Where(source, overridden)
     _known(where, raw, list(_TOP), "")
     name = _string(where.name("name"), raw.get("name", default_name))
     kind = raw.get("kind", "grid")
@@ -230,34 +232,51 @@ def parse_override(text: str) -> tuple[str, object]:
     return ".".join(p.strip() for p in key.split(".")), parsed
 
 
+def set_key(table: dict, key: str, value: object, flag: str = "--set") -> None:
+    """Set the dotted ``key`` of ``table`` to ``value`` in place, creating tables on the way."""
+    parts = key.split(".")
+    node = table
+    for i, part in enumerate(parts[:-1]):
+        child = node.setdefault(part, {})
+        if not isinstance(child, dict):
+            raise ParameterError(f"{flag} {key}", f"a key inside a table, but {'.'.join(parts[:i + 1])} "
+                                 "is not a table", child)
+        node = child
+    node[parts[-1]] = value
+
+
 def apply_overrides(raw: Mapping, overrides: Sequence[str]) -> tuple[dict, list[str]]:
     """Return a deep copy of ``raw`` with ``--set`` overrides applied, and the dotted keys they set."""
     out = json.loads(json.dumps(dict(raw), default=str))
     keys = []
     for text in overrides:
         key, value = parse_override(text)
-        parts = key.split(".")
-        node = out
-        for i, part in enumerate(parts[:-1]):
-            child = node.setdefault(part, {})
-            if not isinstance(child, dict):
-                raise ParameterError(f"--set {key}", f"a key inside a table, but {'.'.join(parts[:i + 1])} "
-                                     "is not a table", child)
-            node = child
-        node[parts[-1]] = value
+        set_key(out, key, value)
         keys.append(key)
     return out, keys
 
 
-def load_study(path: str | Path, overrides: Sequence[str] = ()) -> Study:
-    """Read, override and validate a study file.
+def read_study_table(path: str | Path, overrides: Sequence[str] = (), physics: Mapping[str, object] | None = None
+                     ) -> tuple[dict, dict[str, str]]:
+    """A study file's TOML table with the command line's values applied, and where each of those came from.
 
     Parameters
     ----------
     path
-        A TOML file (schema: module docstring, ``docs/studies.md``).
+        The study file.
     overrides
-        ``"key=value"`` strings as given to ``--set`` (dotted keys for tables; values parsed as TOML).
+        ``--set`` strings, ``"dotted.key=TOML value"``.
+    physics
+        ``--physics`` values, ``{[physics] key: value}`` (parsed, not yet checked: the study's one check of its
+        ``[physics]`` table, :class:`~latticeopt.study.settings.EvalSettings`, checks them with the file's own
+        values and names a bad one ``--physics KEY``). They are applied after ``overrides``.
+
+    Returns
+    -------
+    table : dict
+    origins : dict
+        ``{dotted key: flag}`` for every key set here (``--set mesh.size_mm``, ``--physics sigma_S_per_m``); pass it
+        as ``overridden`` to the ``*_from_dict`` validators.
     """
     p = Path(path)
     try:
@@ -269,4 +288,26 @@ def load_study(path: str | Path, overrides: Sequence[str] = ()) -> Study:
     except tomllib.TOMLDecodeError as exc:
         raise ParameterError(str(p), "valid TOML", str(exc)) from None
     raw, keys = apply_overrides(raw, overrides)
-    return study_from_dict(raw, source=str(p), overridden=keys, default_name=p.stem)
+    named = origins(keys)
+    for k, value in (physics or {}).items():
+        set_key(raw, f"physics.{k}", value, flag="--physics")
+        named[f"physics.{k}"] = f"--physics {k}"
+    return raw, named
+
+
+def load_study(path: str | Path, overrides: Sequence[str] = (), physics: Mapping[str, object] | None = None
+               ) -> Study:
+    """Read, override and validate a study file.
+
+    Parameters
+    ----------
+    path
+        A TOML file (schema: module docstring, ``docs/studies.md``).
+    overrides
+        ``"key=value"`` strings as given to ``--set`` (dotted keys for tables; values parsed as TOML).
+    physics
+        ``[physics]`` values as given to ``--physics`` (``{key: value}``), applied last and checked with the
+        file's table, once.
+    """
+    raw, named = read_study_table(path, overrides, physics)
+    return study_from_dict(raw, source=str(path), overridden=named, default_name=Path(path).stem)

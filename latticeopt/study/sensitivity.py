@@ -14,16 +14,17 @@ the baseline over the values tried, with the sampling error (grid studies) as er
 
 from __future__ import annotations
 
+import copy
 import csv
 import math
 import tomllib
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 from ..design import TABLE_KEYS
 from ..errors import AllFailedError, ParameterError
-from .config import Study, load_study
+from .config import Study, read_study_table, set_key, study_from_dict
 
 __all__ = ["Variation", "load_variants", "parse_vary", "run_sensitivity", "plot_tornado", "write_table"]
 
@@ -69,13 +70,25 @@ def _label(key: str, value) -> str:
     return f"{key}={value}"
 
 
-def load_variants(path: str | Path, variations: Sequence[Variation], overrides: Sequence[str] = ()
-                  ) -> list[tuple[str, str | None, object, Study]]:
+def load_variants(path: str | Path, variations: Sequence[Variation], overrides: Sequence[str] = (),
+                  physics: Mapping[str, object] | None = None) -> list[tuple[str, str | None, object, Study]]:
     """The baseline and every variant as validated studies (all checked before any work).
 
-    Returns ``(label, key, value, study)`` rows; the baseline has key and value ``None``.
+    The file is read once (``overrides`` and ``physics`` as in :func:`~latticeopt.study.config.read_study_table`);
+    each variant sets its value in a copy of that table. Returns ``(label, key, value, study)`` rows; the baseline
+    has key and value ``None``.
     """
-    base = load_study(path, overrides)
+    raw, named = read_study_table(path, overrides, physics)
+
+    def variant(out: Path, key: str | None = None, value: object = None) -> Study:
+        table = copy.deepcopy(raw)
+        if key is not None:
+            set_key(table, key, value, flag="--vary")
+        table["out"] = out.as_posix()
+        where = {**named, **({key: f"--vary {key}"} if key is not None else {})}
+        return study_from_dict(table, source=str(path), overridden=where, default_name=Path(path).stem)
+
+    base = study_from_dict(raw, source=str(path), overridden=named, default_name=Path(path).stem)
     if base.adaptive is not None:  # every run must be compared on the same, full phantom set
         raise ParameterError(f"{path}: phantoms.target_se", "no adaptive phantom counts in a sensitivity study (each "
                              "run is summarized over every phantom)", base.adaptive.target_se)
@@ -83,25 +96,16 @@ def load_variants(path: str | Path, variations: Sequence[Variation], overrides: 
         raise ParameterError("STUDY", "a press study or a small grid (at most 400 evaluations per run)",
                              f"{len(base.designs)} designs x {len(base.phantoms)} phantoms")
     root = base.out_dir / "sensitivity"
-    runs = [("baseline", None, None, load_study(path, [*overrides, f"out={(root / 'baseline').as_posix()}"]))]
+    runs = [("baseline", None, None, variant(root / "baseline"))]
     for var in variations:
         for val in var.values:
             label = _label(var.key, val)
-            text = f"{var.key}={_toml(val)}"
             try:
-                study = load_study(path, [*overrides, text, f"out={(root / label).as_posix()}"])
+                study = variant(root / label, var.key, val)
             except ParameterError as exc:
                 raise ParameterError(f"--vary {var.key}", exc.expected, exc.got) from None
             runs.append((label, var.key, val, study))
     return runs
-
-
-def _toml(value) -> str:
-    if isinstance(value, str):
-        return f'"{value}"'
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    return repr(value)
 
 
 def figures(study: Study, evaluations) -> dict:
