@@ -226,6 +226,14 @@ def test_designs_are_compared_on_the_phantoms_every_design_solved(tmp_path, monk
         assert f"excluded phantom {p.index} ({p.n_touches} touches): failed for width = 0 mm: ConvergenceError" \
             in report
     assert len(_read_csv(res.outputs["excluded"])) == 2
+    # every design against the best, paired over the same survivors, overall and per touch count
+    paired = _read_csv(res.outputs["paired"])
+    assert [r["width_mm"] for r in paired] == ["2.0", "0.0"] and float(paired[0]["diff_to_best"]) == 0.0
+    assert float(paired[1]["diff_to_best"]) == pytest.approx(-best["paired_diff"], rel=1e-12)
+    for k in (1, 2):
+        diffs = [_fake_value(w0, p) - _fake_value(w2, p) for p in survivors if p.n_touches == k]
+        assert float(paired[1][f"diff_{k}_touch"]) == pytest.approx(statistics.mean(diffs), rel=1e-12)
+    assert "paired difference to the best" in report and "width = 0 mm: -" in report
     compared = [(r["width_mm"], r["compared"]) for r in _read_csv(res.outputs["results"])]
     assert sum(c == "True" for _, c in compared) == 8
     # once the failures are retried successfully the full set is back and the stale list is gone

@@ -16,7 +16,8 @@ Outputs (:func:`write_outputs`): ``results.csv`` (one row per design x phantom),
 mean V_rel, standard error and ``n`` over the common phantoms, the design's own successes ``n_ok`` and failures,
 and the mean per touch count), ``vrel_lines.png`` (V_rel against the first of ``width_mm``/the first grid field,
 one line per value of the other grid fields, error bars = SE, the layout of the paper's Fig. 4),
-``vrel_heatmap.png`` (two-field grids; the figures are drawn by :mod:`.plots`), ``excluded.csv`` (when a
+``vrel_heatmap.png`` (two-field grids; the figures are drawn by :mod:`.plots`), ``paired.csv`` (every design's
+paired difference to the best, overall and per touch count: :func:`paired_to_best`), ``excluded.csv`` (when a
 phantom was excluded) and ``report.txt`` (the
 best design with its uncertainty and a paired comparison with the runner-up — paired because all designs see
 the same phantoms). Press studies write ``press.csv``, ``press.png`` and the ratios at the deepest depth instead
@@ -37,8 +38,8 @@ from ._rows import _by_design, _fmt, _value
 from .config import Study
 from .store import Evaluation
 
-__all__ = ["best_design", "comparison_set", "mean_se", "press_curves", "press_ratios", "results_rows", "summarize",
-           "write_csv", "write_outputs", "write_tables_and_figures"]
+__all__ = ["best_design", "comparison_set", "mean_se", "paired_to_best", "press_curves", "press_ratios",
+           "results_rows", "summarize", "write_csv", "write_outputs", "write_tables_and_figures"]
 
 
 def mean_se(values: Sequence[float]) -> tuple[float, float]:
@@ -145,6 +146,37 @@ def best_design(study: Study, evaluations: Sequence[Evaluation]) -> dict | None:
         best.update(runner_up=study.designs[order[1]], runner_up_summary=summary[order[1]], paired_diff=d,
                     paired_se=se, paired_n=len(diffs))
     return best
+
+
+def paired_to_best(study: Study, evaluations: Sequence[Evaluation]) -> list[dict]:
+    """Every compared design against the best: the paired difference ``V_rel(design) - V_rel(best)`` over the
+    common phantoms, its SE and that difference as a fraction of the best's mean, overall and per touch count.
+
+    Rows in the order of the designs' means (best first, its own row zero); ``[]`` when fewer than two designs
+    are compared. Paired differences are what common random numbers make precise: their SE is usually far below
+    the two means' SEs.
+    """
+    summary = summarize(study, evaluations)
+    groups = _by_design(study, evaluations)
+    cmp = comparison_set(study, evaluations)
+    order = sorted(cmp["compared"], key=lambda i: -summary[i]["v_rel_mean"])
+    if len(order) < 2 or not cmp["used"]:
+        return []
+    best = groups[order[0]]
+    counts = sorted({study.phantoms[j].n_touches for j in cmp["used"]})
+    rows = []
+    for i in order:
+        row = {"design": _fmt(study.designs[i], study.grid_fields),
+               **{f: _value(study.designs[i], f) for f in study.grid_fields}}
+        d, se = mean_se([groups[i][j].v_rel - best[j].v_rel for j in cmp["used"]])
+        row.update(v_rel_mean=summary[i]["v_rel_mean"], diff_to_best=d, diff_se=se,
+                   diff_fraction=d / summary[order[0]]["v_rel_mean"], n=len(cmp["used"]))
+        for k in counts:
+            dk, sek = mean_se([groups[i][j].v_rel - best[j].v_rel for j in cmp["used"]
+                               if study.phantoms[j].n_touches == k])
+            row[f"diff_{k}_touch"], row[f"diff_{k}_touch_se"] = dk, sek
+        rows.append(row)
+    return rows
 
 
 def write_csv(path: Path, rows: Sequence[dict]) -> Path:
@@ -287,6 +319,13 @@ def write_outputs(study: Study, evaluations: Sequence[Evaluation], out: Path) ->
                 lines.append(f"runner-up: {_fmt(best['runner_up'], study.grid_fields)}: {r['v_rel_mean']:.5f} ± "
                              f"{r['v_rel_se']:.5f}; paired difference {best['paired_diff']:.5f} ± "
                              f"{best['paired_se']:.5f} (SE over {best['paired_n']} common phantoms, z = {z:.1f})")
+        paired = paired_to_best(study, evaluations)
+        if paired:
+            files["paired"] = write_csv(out / "paired.csv", paired)
+            if len(paired) <= 12:
+                lines.append("paired difference to the best (mean ± SE over the common phantoms):")
+                lines += [f"  {r['design']}: {r['diff_to_best']:+.5f} ± {r['diff_se']:.5f} "
+                          f"({100 * r['diff_fraction']:+.1f} %)" for r in paired[1:]]
     lines += cmp_lines
     (out / "report.txt").write_text("\n".join(lines) + "\n")
     files["report"] = out / "report.txt"
