@@ -529,3 +529,18 @@ def test_prepare_hook_runs_once_per_chunk_of_one_design(tmp_path, monkeypatch):
     per_design = -(-8 // CHUNK_PHANTOMS)
     assert len(preps) == 2 * per_design  # chunks never mix designs
     assert len(set(preps[:per_design])) == 1 and preps[0] != preps[-1]
+
+
+def test_a_grid_of_layout_files_says_which_hash_is_which_file(tmp_path):
+    from latticeopt.study.config import study_from_dict
+
+    data = TESTS.parent / "studies" / "data"
+    files = [(data / "square_w4.geojson").as_posix(), (data / "graded_d4_t3.geojson").as_posix()]
+    study = study_from_dict({"out": (tmp_path / "out").as_posix(), "design": {"thickness_mm": 3.0},
+                             "grid": {"layout": files}, "phantoms": {"seed": 7, "counts": {"1": 2}},
+                             "mesh": {"size_mm": 5.0}, "model": "tests.test_sweep:fake_evaluate"})
+    res = run_sweep(study, fake_evaluate, progress=False)
+    report = (study.out_dir / "report.txt").read_text()
+    for design, path in zip(study.designs, files):
+        assert f"layout {design.content_hash()[:8]} = {path}" in report
+    assert study.designs[0].content_hash() != study.designs[1].content_hash() and res.failed == 0

@@ -27,6 +27,7 @@ of the summary and grid figures.
 from __future__ import annotations
 
 import csv
+import itertools
 import json
 import math
 from collections.abc import Sequence
@@ -270,6 +271,16 @@ def write_tables_and_figures(study: Study, result_rows: Sequence[dict], summary:
     return files
 
 
+def _layout_legend(study: Study) -> list[str]:
+    """A grid over layout files labels each design by its content hash; say which file each hash is."""
+    fields = study.grid_fields
+    if "layout" not in fields:
+        return []
+    k = fields.index("layout")
+    combos = list(itertools.product(*(values for _, values in study.grid)))
+    return [f"layout {_value(d, 'layout')} = {combo[k]}" for d, combo in zip(study.designs, combos)]
+
+
 def write_outputs(study: Study, evaluations: Sequence[Evaluation], out: Path) -> tuple[dict, list[str]]:
     """Write the tables, figures and ``report.txt`` of a study into ``out``.
 
@@ -326,7 +337,7 @@ def write_outputs(study: Study, evaluations: Sequence[Evaluation], out: Path) ->
                 lines.append("paired difference to the best (mean ± SE over the common phantoms):")
                 lines += [f"  {r['design']}: {r['diff_to_best']:+.5f} ± {r['diff_se']:.5f} "
                           f"({100 * r['diff_fraction']:+.1f} %)" for r in paired[1:]]
-    lines += cmp_lines
+    lines += cmp_lines + _layout_legend(study)
     (out / "report.txt").write_text("\n".join(lines) + "\n")
     files["report"] = out / "report.txt"
     return files, lines
