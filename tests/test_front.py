@@ -98,7 +98,8 @@ def test_min_uniformity_is_honoured(tmp_path, monkeypatch):
     final = json.loads((tmp_path / "floor" / "final.json").read_text())
     assert final["uniformity"] >= floor - 1e-4 and final["uniformity"] > end
     assert all("uniformity" in h and h["probes_solved"] == 3 for h in _history(tmp_path / "floor"))
-    assert f"uniformity (1 - CV) {final['uniformity']:.4f}" in (tmp_path / "floor" / "report.txt").read_text()
+    report = (tmp_path / "floor" / "report.txt").read_text()
+    assert f"uniformity (1 - CV) {final['uniformity']:.4f}" in report and f"uniformity floor {floor:g}: met" in report
 
 
 @pytest.mark.parametrize("override, key", [
@@ -133,3 +134,63 @@ def test_front_dry_run_lists_the_points(tmp_path, capsys, monkeypatch):
     bad = main(["optimize", "studies/optimize_freeform.toml", "--out", str(tmp_path), "--set",
                 "freeform.front=[0.5]", "--set", "freeform.min_uniformity=0.6", "--dry-run"])
     assert bad == 2 and "freeform.min_uniformity" in capsys.readouterr().err
+
+
+def test_front_runs_resumes_and_plots(tmp_path, capsys, monkeypatch):
+    """A tiny front end to end (two lattices as references): every point its own folder, the table and the plot;
+    run again, nothing is solved (the points' final.json and references.json are read)."""
+    monkeypatch.chdir(__import__("pathlib").Path(__file__).resolve().parents[1])
+    import latticeopt.density
+    import latticeopt.optimize.front as front
+
+    monkeypatch.setattr(front, "REFERENCES", {"uniform": (0.0,), "square": (4.0,)})
+    argv = ["optimize", "studies/optimize_graded.toml", "--out", str(tmp_path), *TINY[:-1],
+            "--set", "graded.iterations=1", "--set", "graded.front=[0.5]"]
+    assert main(argv) == 0
+    first = capsys.readouterr().out
+    assert "== front point free ==" in first and "== front point u0.500 ==" in first
+    rows = (tmp_path / "front.csv").read_text().splitlines()
+    assert rows[0].startswith("kind,label,v_rel,uniformity") and len(rows) == 1 + 2 + 2
+    assert (tmp_path / "front.png").is_file() and (tmp_path / "u0.500" / "report.txt").is_file()
+    floor = json.loads((tmp_path / "u0.500" / "state.json").read_text())["identity"]["config"]["min_uniformity"]
+    assert floor == 0.5
+    monkeypatch.setattr(latticeopt.density, "DensityModel", None)  # a second run must solve nothing
+    assert main(argv) == 0
+    second = capsys.readouterr().out
+    assert "== front point" not in second and "done before" in second
+    assert (tmp_path / "front.csv").read_text().splitlines() == rows
+    assert main([*argv, "--dry-run"]) == 0
+    assert capsys.readouterr().out.count("(done)") == 2
+
+
+def test_runs_without_probes_keep_their_recorded_settings():
+    """The probe keys at their defaults are not part of a run's identity: runs begun before them still resume."""
+    from latticeopt.optimize.freeform import FreeformConfig, run_identity
+    from latticeopt.optimize.probes import PROBE_DEFAULTS
+
+    ident = run_identity(DESIGN, [], MeshSettings(), PhysicsSettings(), FreeformConfig())
+    assert not set(PROBE_DEFAULTS) & set(ident["config"]) and "cells" in ident["config"]
+    ident = run_identity(DESIGN, [], MeshSettings(), PhysicsSettings(), FreeformConfig(min_uniformity=0.2))
+    assert ident["config"]["min_uniformity"] == 0.2
+
+
+def test_a_front_point_is_the_study_run_on_its_own(monkeypatch):
+    """The point folders of a front hold what `--set graded.probes=true` (free) and `--set graded.min_uniformity=u`
+    runs would: the documented loop of single runs and the front share their folders."""
+    from latticeopt.optimize.freeform import run_identity
+    from latticeopt.optimize.freeform_study import freeform_from_dict
+    from latticeopt.optimize.front import front_points
+    from latticeopt.study.config import read_study_table
+
+    def load(*sets):
+        raw, keys = read_study_table("studies/optimize_graded.toml", list(sets), {})
+        s = freeform_from_dict(raw, "studies/optimize_graded.toml", keys)
+        return s, lambda cfg: run_identity(s.design, list(s.phantoms), s.mesh, s.physics, cfg)
+
+    monkeypatch.chdir(__import__("pathlib").Path(__file__).resolve().parents[1])
+    front, ident = load("graded.front=[0.3, 0.5]")
+    points = dict(front_points(front.config))
+    free, ident_free = load("graded.probes=true")
+    floor, ident_floor = load("graded.min_uniformity=0.5")
+    assert ident(points["free"]) == ident_free(free.config)
+    assert ident(points["u0.500"]) == ident_floor(floor.config) != ident(points["u0.300"])

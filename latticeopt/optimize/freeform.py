@@ -26,7 +26,7 @@ import numpy as np
 from .. import _validate as v
 from .._npzfile import write_atomic
 from ..errors import ParameterError
-from .probes import ProbeGrid, ProbeKeys, final_lines, final_record, uniformity_constraint
+from .probes import FLOOR_TOL, PROBE_DEFAULTS, ProbeGrid, ProbeKeys, final_lines, final_record, uniformity_constraint
 
 log = logging.getLogger(__name__)
 
@@ -270,7 +270,7 @@ def optimize_density(design, phantoms: list, mesh_settings, physics, cfg, param,
         if cfg.max_isolation is not None:
             opt.add_inequality_constraint(isolation_cap, 1e-3)
         if cfg.min_uniformity is not None:
-            opt.add_inequality_constraint(uniformity_constraint(evaluate, ff, beta, cfg.min_uniformity), 1e-4)
+            opt.add_inequality_constraint(uniformity_constraint(evaluate, ff, beta, cfg.min_uniformity), FLOOR_TOL)
         opt.set_maxeval(remaining)
         opt.set_xtol_rel(1e-6)  # MMA parked on its bounds otherwise repeats the same point until maxeval
         try:
@@ -288,9 +288,12 @@ def optimize_density(design, phantoms: list, mesh_settings, physics, cfg, param,
 
 
 def run_identity(design, phantoms: list, mesh_settings, physics, cfg) -> dict:
-    """What a run folder's ``state.json`` must match to be resumed (and ``final.json`` to be reused)."""
+    """What a run folder's ``state.json`` must match to be resumed (and ``final.json`` to be reused).
+
+    Probe keys at their defaults are left out, so a run begun before they existed still resumes."""
+    config = {k: val for k, val in asdict(cfg).items() if k not in PROBE_DEFAULTS or val != PROBE_DEFAULTS[k]}
     return json.loads(json.dumps({
-        "config": asdict(cfg), "design": design.as_dict(), "mesh": mesh_settings.as_dict(),
+        "config": config, "design": design.as_dict(), "mesh": mesh_settings.as_dict(),
         "physics": physics.as_dict(), "phantoms": [[t.as_dict() for t in p] for p in phantoms]}))
 
 

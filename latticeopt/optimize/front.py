@@ -9,9 +9,9 @@ the uniform layer) are scored on the *same* density model, phantoms and probes, 
 (:func:`~latticeopt.density.field.density_of_design`), so every point of the plot comes from one model.
 
 Outputs: ``front.csv`` (a row per point: kind, label, mean V_rel, uniformity, worst-to-best ratio, gel fraction,
-folder), ``front.png`` (mean V_rel against uniformity), ``references.json`` (the lattices' results, kept between
-runs). A point whose ``final.json`` matches its settings is read, not run again; an interrupted point resumes
-from its ``state.json``.
+the point's floor and whether its final layout meets it, folder), ``front.png`` (mean V_rel against uniformity),
+``references.json`` (the lattices' results, kept between runs). A point whose ``final.json`` matches its settings
+is read, not run again; an interrupted point resumes from its ``state.json``.
 """
 
 from __future__ import annotations
@@ -22,8 +22,6 @@ from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
-import numpy as np
-
 from ..errors import ParameterError
 
 #: The parametric reference lattices: family -> channel widths (mm); width 0 is the uniform layer.
@@ -32,9 +30,12 @@ REFERENCES = {"uniform": (0.0,), "square": (1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8
 
 
 def front_points(cfg) -> list[tuple[str, object]]:
-    """``(label, config)`` of every point of ``cfg.front``: ``free`` first, then one per uniformity floor."""
-    base = replace(cfg, front=(), min_uniformity=None, probes=True)
-    return [("free", base)] + [(f"u{u:.3f}", replace(base, min_uniformity=u)) for u in cfg.front]
+    """``(label, config)`` of every point of ``cfg.front``: ``free`` first, then one per uniformity floor.
+
+    Each point's settings are those of the study run on its own with ``--set <table>.probes=true`` (``free``) or
+    ``--set <table>.min_uniformity=<u>`` and no ``front``: such a run into the point's folder is the point."""
+    base = replace(cfg, front=())
+    return [("free", replace(base, probes=True))] + [(f"u{u:.3f}", replace(base, min_uniformity=u)) for u in cfg.front]
 
 
 def reference_designs(design) -> list[tuple[str, object]]:
@@ -112,9 +113,13 @@ def run_front(study, out_dir, progress: Callable[[str], None] | None = print) ->
 
 
 def _row(kind: str, label: str, final: dict, folder) -> dict:
+    from .probes import FLOOR_TOL, floor_of
+
+    floor = floor_of(final)
     return {"kind": kind, "label": label, "v_rel": final["v_rel"], "uniformity": final["uniformity"],
             "worst_to_best": final["probe_worst_to_best"], "hydrogel_fraction": final["hydrogel_fraction"],
-            "folder": str(folder)}
+            "min_uniformity": "" if floor is None else floor,
+            "floor_met": "" if floor is None else final["uniformity"] >= floor - FLOOR_TOL, "folder": str(folder)}
 
 
 def _references(study, out: Path, progress) -> list[dict]:
@@ -179,10 +184,14 @@ def plot_front(path: Path, points: list[dict], references: list[dict], title: st
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(7.0, 5.0), layout="constrained")
-    u = np.array([p["uniformity"] for p in points])
-    vr = np.array([p["v_rel"] for p in points])
-    order = np.argsort(u)
-    ax.plot(u[order], vr[order], "o-", color="k", ms=6, label="optimized (epsilon-constraint)", zorder=3)
+    # a point that missed its floor is drawn hollow and left off the line: the optimizer stopped short of it
+    on = sorted((p for p in points if p["floor_met"] is not False), key=lambda p: p["uniformity"])
+    missed = [p for p in points if p["floor_met"] is False]
+    ax.plot([p["uniformity"] for p in on], [p["v_rel"] for p in on], "o-", color="k", ms=6,
+            label="optimized (epsilon-constraint)", zorder=3)
+    if missed:
+        ax.plot([p["uniformity"] for p in missed], [p["v_rel"] for p in missed], "o", mfc="white", mec="k", ms=6,
+                zorder=4, label="floor not reached")
     for p in points:
         ax.annotate(p["label"], (p["uniformity"], p["v_rel"]), textcoords="offset points", xytext=(5, 4),
                     fontsize=7)

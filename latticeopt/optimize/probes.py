@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
@@ -38,6 +38,8 @@ OPS = (lambda a: a, lambda a: a[::-1], lambda a: a[:, ::-1], lambda a: a[::-1, :
 #: Layout symmetry -> the symmetries the probes may use.
 GROUPS = {"none": (0,), "mirror": (0, 1, 2, 3), "d4": tuple(range(8))}
 _SYMMETRIC_ATOL = 1e-12
+#: A final uniformity this far below its floor still meets it (the tolerance the optimizer's constraint gets).
+FLOOR_TOL = 1e-4
 
 
 @dataclass(frozen=True)
@@ -81,6 +83,10 @@ class ProbeKeys:
             raise ParameterError(f"{t}.min_uniformity", "no value when front is given (every point of the front "
                                  "sets its own)", self.min_uniformity)
         set_(self, "front", tuple(sorted(front)))
+
+
+#: The probe keys' defaults (a run's recorded settings leave out the keys at these values).
+PROBE_DEFAULTS = {f.name: f.default for f in fields(ProbeKeys)}
 
 
 def probe_objective(cfg: ProbeKeys) -> Objective:
@@ -244,7 +250,17 @@ def final_lines(out) -> list[str]:
     if "uniformity" not in final:
         return []
     m = len(final["probe_v_rel"])
+    floor = floor_of(final)
+    met = [] if floor is None else [
+        f"uniformity floor {floor:g}: met" if final["uniformity"] >= floor - FLOOR_TOL else
+        f"WARNING: uniformity floor {floor:g} not reached ({final['uniformity']:.4f}): the optimizer found no layout "
+        "this uniform within its iterations (run more, or lower the floor)"]
     return [f"final layout: mean V_rel {final['v_rel']:.5f}; over the {int(round(m ** 0.5))} x "
             f"{int(round(m ** 0.5))} probe grid uniformity (1 - CV) {final['uniformity']:.4f}, worst-to-best "
             f"{final['probe_worst_to_best']:.4f}, probe V_rel {min(final['probe_v_rel']):.5f} to "
-            f"{max(final['probe_v_rel']):.5f}"]
+            f"{max(final['probe_v_rel']):.5f}", *met]
+
+
+def floor_of(final: dict) -> float | None:
+    """The uniformity floor a ``final.json`` was optimized under (None: no floor)."""
+    return final.get("identity", {}).get("config", {}).get("min_uniformity")
