@@ -131,14 +131,18 @@ def _run_density_study(args: argparse.Namespace, raw: dict, keys: list) -> int:
     study = freeform_from_dict(raw, source=str(args.study), overridden=keys)
     out = check_output_path("--out", args.out or study.out_dir, kind="dir")
     cfg = study.config
+    if cfg.front:
+        return _run_density_front(args, study, out)
     if args.dry_run:
         layout = (f"{cfg.cells} x {cfg.cells} cells, minimum feature {cfg.min_feature_mm:g} mm, beta "
                   f"{list(cfg.betas)} x {cfg.iterations_per_beta} iterations" if study.kind == "freeform" else
                   f"a width per line of pitch {study.design.pitch_mm:g} mm ({cfg.min_width_mm:g} mm <= w, islands >= "
                   f"{cfg.min_island_mm:g} mm), {cfg.iterations} iterations")
+        probes = (f"; uniformity >= {cfg.min_uniformity:g}" if cfg.min_uniformity is not None else "") + (
+            f"; probes {cfg.probe_grid} x {cfg.probe_grid}" if cfg.probes_on else "")
         print(f"{study.name} ({study.kind}): maximize mean V_rel over {len(study.phantoms)} phantoms; {layout}; "
-              f"symmetry {cfg.symmetry}; gel fraction {cfg.min_hydrogel_fraction:g}..{cfg.max_hydrogel_fraction:g}; "
-              f"{cfg.algorithm}; mesh {study.mesh.size_mm:g} mm; out {out}")
+              f"symmetry {cfg.symmetry}; gel fraction {cfg.min_hydrogel_fraction:g}..{cfg.max_hydrogel_fraction:g}"
+              f"{probes}; {cfg.algorithm}; mesh {study.mesh.size_mm:g} mm; out {out}")
         return 0
     run = run_freeform if study.kind == "freeform" else run_graded
     res = run(study.design, list(study.phantoms), study.mesh, study.physics, cfg, out,
@@ -146,4 +150,19 @@ def _run_density_study(args: argparse.Namespace, raw: dict, keys: list) -> int:
     print(f"mean V_rel {res.v_rel:.5f}, gel fraction {res.hydrogel_fraction:.3f}, {res.evaluations} evaluations; "
           f"wrote " + ", ".join(f"{k} {v}" for k, v in res.files.items() if k != "stl")
           + (f", STL solids in {out / 'stl'}" if "stl" in res.files else ""))
+    return 0
+
+
+def _run_density_front(args: argparse.Namespace, study, out) -> int:
+    """A density study with a ``front`` (:mod:`latticeopt.optimize.front`)."""
+    from ..optimize.front import describe_front, run_front
+
+    if args.dry_run:
+        print("\n".join(describe_front(study, out)))
+        return 0
+    res = run_front(study, out, progress=None if args.quiet else print)
+    for row in res["points"] + res["references"]:
+        print(f"{row['kind']:9s} {row['label']:16s} mean V_rel {row['v_rel']:.5f}  uniformity {row['uniformity']:.4f}"
+              f"  worst/best {row['worst_to_best']:.3f}  gel {row['hydrogel_fraction']:.3f}")
+    print("wrote " + ", ".join(f"{k} {v}" for k, v in res["files"].items()))
     return 0

@@ -26,6 +26,7 @@ import numpy as np
 from .. import _validate as v
 from .._npzfile import write_atomic
 from ..errors import ParameterError
+from .probes import FLOOR_TOL, PROBE_DEFAULTS, ProbeGrid, ProbeKeys, final_lines, final_record, uniformity_constraint
 
 log = logging.getLogger(__name__)
 
@@ -33,8 +34,9 @@ FREEFORM_ALGORITHMS = ("LD_MMA", "LD_CCSAQ")
 
 
 @dataclass(frozen=True)
-class DensityStudyConfig:
-    """What the free-form and graded tables share: the density grid, symmetry, constraints and algorithm.
+class DensityStudyConfig(ProbeKeys):
+    """What the free-form and graded tables share: the density grid, symmetry, constraints, algorithm and the
+    probe grid (:class:`~latticeopt.optimize.probes.ProbeKeys`).
 
     Subclasses name their table in ``TABLE`` (errors say ``<table>.<key>``) and check their own keys in
     ``_check``."""
@@ -65,6 +67,7 @@ class DensityStudyConfig:
         set_(self, "algorithm", v.choice(f"{t}.algorithm", self.algorithm, FREEFORM_ALGORITHMS))
         if self.max_isolation is not None:
             set_(self, "max_isolation", v.real(f"{t}.max_isolation", self.max_isolation, lo=1.0, hi=1e12))
+        self._check_probes(set_)
         self._check(set_)
 
     def _check(self, set_) -> None:
@@ -162,17 +165,17 @@ def optimize_density(design, phantoms: list, mesh_settings, physics, cfg, param,
 
     from ..density import DensityModel
 
+    probes = ProbeGrid(design, cfg) if cfg.probes_on else None  # checks that the probes fit, before any work
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     ff = param
-    identity = {"config": asdict(cfg), "design": design.as_dict(), "mesh": mesh_settings.as_dict(),
-                "physics": physics.as_dict(), "phantoms": [[t.as_dict() for t in p] for p in phantoms]}
+    identity = run_identity(design, phantoms, mesh_settings, physics, cfg)
     state_path, hist_path = out / "state.json", out / "history.jsonl"
     x, stage, done = np.asarray(x0, dtype=float), 0, 0
     history = []
     if state_path.exists():
         state = json.loads(state_path.read_text())
-        if state.get("identity") != json.loads(json.dumps(identity)):
+        if state.get("identity") != identity:
             raise ParameterError("out", "an output folder of this same study (its settings differ from "
                                  "the stored state.json; choose another --out)", str(out))
         x, stage, done = np.asarray(state["x"], dtype=float), int(state["stage"]), int(state["iterations"])
@@ -199,7 +202,8 @@ def optimize_density(design, phantoms: list, mesh_settings, physics, cfg, param,
             t0 = time.perf_counter()
             ev = model.evaluate(rho, phantoms, warm=warm)
             warm = [p.displacement_mm for p in ev.presses]
-            cache[key] = (rho, ev, time.perf_counter() - t0)
+            pe = probes.solve(model, rho) if probes else None
+            cache[key] = (rho, ev, time.perf_counter() - t0, pe)
         return cache[key]
 
     ones = np.full((cfg.cells, cfg.cells), 1.0 / cfg.cells ** 2)
@@ -214,14 +218,14 @@ def optimize_density(design, phantoms: list, mesh_settings, physics, cfg, param,
         count = {"n": done if k == stage else 0}
 
         def objective(xv, grad, beta=beta, k=k, count=count):
-            rho, ev, secs = evaluate(xv, beta)
+            rho, ev, secs, pe = evaluate(xv, beta)
             if grad.size:
                 grad[:] = -ff.gradient(xv, beta, ev.dv_rel_ddensity)
             count["n"] += 1
             rec = {"stage": k, "beta": beta, "iteration": count["n"], "v_rel": ev.v_rel,
                    "hydrogel_fraction": float(rho.mean()), "stretch": ev.stretch, "force_N": ev.force_N,
                    "grey": float(np.mean((rho > 0.05) & (rho < 0.95))), "seconds": secs,
-                   "newton_steps": sum(p.newton_steps for p in ev.presses)}
+                   "newton_steps": sum(p.newton_steps for p in ev.presses), **(pe.record() if pe else {})}
             history.append(rec)
             with open(hist_path, "a") as fh:
                 fh.write(json.dumps(rec) + "\n")
@@ -229,7 +233,7 @@ def optimize_density(design, phantoms: list, mesh_settings, physics, cfg, param,
             if progress:
                 progress(f"[stage {k + 1}/{len(cfg.betas)} beta {beta:g} it {count['n']:3d}] V_rel {ev.v_rel:.5f}  "
                          f"gel {rec['hydrogel_fraction']:.3f}  stretch {ev.stretch:.3f}  grey {rec['grey']:.2f}  "
-                         f"{secs:.1f} s")
+                         + (f"uniformity {pe.uniformity:.4f}  " if pe else "") + f"{secs:.1f} s")
             return -ev.v_rel
 
         def fraction_max(xv, grad, beta=beta):
@@ -245,7 +249,7 @@ def optimize_density(design, phantoms: list, mesh_settings, physics, cfg, param,
             return cfg.min_hydrogel_fraction - float(rho.mean())
 
         def stretch_cap(xv, grad, beta=beta):
-            _, ev, _ = evaluate(xv, beta)
+            ev = evaluate(xv, beta)[1]
             if grad.size:
                 grad[:] = ff.gradient(xv, beta, ev.dstretch_ddensity)
             return ev.stretch - cfg.max_stretch
@@ -265,6 +269,8 @@ def optimize_density(design, phantoms: list, mesh_settings, physics, cfg, param,
             opt.add_inequality_constraint(stretch_cap, 1e-4)
         if cfg.max_isolation is not None:
             opt.add_inequality_constraint(isolation_cap, 1e-3)
+        if cfg.min_uniformity is not None:
+            opt.add_inequality_constraint(uniformity_constraint(evaluate, ff, beta, cfg.min_uniformity), FLOOR_TOL)
         opt.set_maxeval(remaining)
         opt.set_xtol_rel(1e-6)  # MMA parked on its bounds otherwise repeats the same point until maxeval
         try:
@@ -276,8 +282,19 @@ def optimize_density(design, phantoms: list, mesh_settings, physics, cfg, param,
         _plot_stage(ff.density(x, beta), out / f"layout_stage{k + 1}.png", design,
                     f"stage {k + 1}: beta {beta:g}, {cfg.cells}x{cfg.cells} cells, {len(phantoms)} phantoms")
     beta = cfg.betas[-1]
-    rho, ev, _ = evaluate(np.asarray(x), beta)
+    rho, ev, _, pe = evaluate(np.asarray(x), beta)
+    _write_json(out / "final.json", final_record(ev, rho, pe, identity))
     return np.asarray(x), history, rho, ev
+
+
+def run_identity(design, phantoms: list, mesh_settings, physics, cfg) -> dict:
+    """What a run folder's ``state.json`` must match to be resumed (and ``final.json`` to be reused).
+
+    Probe keys at their defaults are left out, so a run begun before they existed still resumes."""
+    config = {k: val for k, val in asdict(cfg).items() if k not in PROBE_DEFAULTS or val != PROBE_DEFAULTS[k]}
+    return json.loads(json.dumps({
+        "config": config, "design": design.as_dict(), "mesh": mesh_settings.as_dict(),
+        "physics": physics.as_dict(), "phantoms": [[t.as_dict() for t in p] for p in phantoms]}))
 
 
 def _plot_stage(rho: np.ndarray, path: Path, design, title: str) -> None:
@@ -357,6 +374,7 @@ def write_outputs(design, rho: np.ndarray, cfg, out: Path, history: list, geomet
     if history:
         last = history[-1]
         lines.append(f"last evaluation: mean V_rel {last['v_rel']:.5f}, stretch {last['stretch']:.4f}")
+    lines.extend(final_lines(out))
     lines.append(f"{outline}: gel fraction "
                  f"{report['hydrogel_fraction']:.4f}, {report['pieces']} pieces, {report['pieces_dropped']} "
                  f"dropped (no electrode), {report['dropped_area_mm2']:.1f} mm^2 dropped")

@@ -106,6 +106,13 @@ def freeform_from_dict(raw: Mapping, source: str, overridden: Mapping[str, str] 
         raise rename(exc, kind) from None
     except TypeError as exc:
         raise ParameterError(name(kind), "keys of the right types", str(exc)) from None
+    if config.probes_on:
+        from .probes import ProbeGrid
+
+        try:
+            ProbeGrid(design, config)  # the probes fit the sensor and its stack
+        except ParameterError as exc:
+            raise rename(exc, kind) from None
     stem = Path(source).stem
     return FreeformStudy(name=str(raw.get("name", stem)), description=str(raw.get("description", "")),
                          out_dir=Path(raw.get("out", f"runs/{stem}")), design=design, phantoms=phantoms,
