@@ -218,6 +218,46 @@ def test_a_failed_step_is_never_retried_unchanged(stack_mesh):
     assert all(a != b for a, b in zip(events[:-1], events[1:])), events
 
 
+def _failing_at_the_end(solver, failures: int):
+    """Make the first ``failures`` attempts at the final depth fail (residual 1 N); record every attempt."""
+    from latticeopt.mechanics.tangent import _StepFailed
+
+    newton, events = solver._newton, []
+
+    def newton_or_fail(u, ev, cons, lam, final=True):
+        if lam >= 1.0 and sum(e == "failed" for e, _ in events) < failures:
+            events.append(("failed", lam))
+            raise _StepFailed("forced", 1.0, 0.5, (0.1, 1.0))
+        events.append(("ok", lam))
+        return newton(u, ev, cons, lam, final)
+
+    solver._newton = newton_or_fail
+    return events
+
+
+def test_a_press_creeping_towards_its_depth_gives_up_at_the_third_failure_there(stack_mesh):
+    """Every attempt at the final depth fails, the halves between them are accepted: the press gives up at the
+    third failed attempt at that depth (halving on to min_step_mm took 6 attempts from 1 mm), naming the step,
+    the residual and the rule."""
+    solver = IndentationSolver(stack_mesh, IndentSettings(max_step_mm=1.0))
+    events = _failing_at_the_end(solver, failures=100)
+    with pytest.raises(ConvergenceError, match=r"load step 4 from depth 1.375 mm towards 1.5 mm of 1.5 mm .* "
+                                               r"residual 1 N; no progress: 3 failed attempts at this depth"):
+        solver.solve([(25, 25, 7.5, 1.5)])
+    assert [e for e, _ in events] == ["ok", "failed", "ok", "failed", "ok", "failed"], events
+
+
+def test_a_press_that_fails_twice_at_its_depth_still_converges(stack_mesh, stack_solver):
+    """Two failed attempts at the final depth (1:95 on the paper's w = 2, t = 1 needs them) do not stop a press,
+    and the retries reach the state of the press that never failed."""
+    solver = IndentationSolver(stack_mesh, IndentSettings(max_step_mm=1.0))
+    events = _failing_at_the_end(solver, failures=2)
+    res = solver.solve([(25, 25, 7.5, 1.5)])
+    assert res.step_halvings == 2 and [e for e, _ in events].count("failed") == 2, events
+    ref = stack_solver.solve([(25, 25, 7.5, 1.5)])
+    assert res.forces_N[0] == pytest.approx(ref.forces_N[0], rel=1e-4)
+
+
 def test_settings_are_validated():
     with pytest.raises(ParameterError, match="indenter"):
         IndentSettings(indenter="cone")

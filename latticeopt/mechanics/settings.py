@@ -47,8 +47,9 @@ class IndentSettings:
         fastest (2.2-2.5x faster than 1.0 on six random phantoms at 2 mm); with the default inexact Newton
         1.0 mm is 5-12 % faster than 0.75 and 0.6 is 6-10 % slower (six random phantoms, two seeds).
     min_step_mm
-        Step halving gives up below this increment (mm), or after 4 failed load steps in a row (a sixteenth of
-        the increment that failed first).
+        Step halving gives up below this increment (mm), after 4 failed load steps in a row (a sixteenth of
+        the increment that failed first), or after 3 failed attempts at one depth with accepted halves between
+        them.
     max_newton
         Newton iterations per load step before the step counts as failed; None (default): 40, or 60 when some
         material's ``kappa / mu`` exceeds :data:`DOUBLE_ABOVE_KAPPA_OVER_MU`. Where the tangent is indefinite the

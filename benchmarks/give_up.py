@@ -1,0 +1,124 @@
+"""How long a press takes to give up, and what its Newton iterations look like on the way: every load step
+attempt (depths, iterations, seconds, outcome) and every Newton iteration's line search.
+
+    python benchmarks/give_up.py --design 2:1 --touch 50,50,7.5,8.9         # paper mesh: cannot converge
+    python benchmarks/give_up.py --design 2:1 --phantom 1:95 --iterations   # a deep press that converges
+    python benchmarks/give_up.py --mesh default --design 4:3 --touch 50,50,7.5,8.9 --physics KEY=VALUE
+
+Meshes: ``paper`` (the paper map's: 2 mm grid, 2 channel cells, no electrode edge lines) or ``default``
+(``MeshSettings()``). Mechanics only (no electrics). Per attempt: the depths, Newton iterations, seconds, the
+outcome and, per iteration with ``--iterations``, the free residual, the line search's step length ``alpha``
+(the accepted fraction of the Newton increment), the energy change and the factorization's diagonal shift. The
+summary gives the whole solve and the time and work from the end of the last accepted load step to the error.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import sys
+import time
+
+for _var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import numpy as np  # noqa: E402
+
+from latticeopt import LatticeDesign, MeshSettings  # noqa: E402
+from latticeopt.cli._common import add_physics_arg, physics_from_args  # noqa: E402
+from latticeopt.coupled import PhysicsSettings  # noqa: E402
+from latticeopt.errors import ConvergenceError  # noqa: E402
+from latticeopt.mechanics import IndentationSolver  # noqa: E402
+from latticeopt.mesh import mesh_design  # noqa: E402
+
+MESHES = {"paper": MeshSettings(size_mm=2.0, channel_cells=2, layer_cells=2, electrode_edges=False),
+          "default": MeshSettings()}
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--design", default="2:1", help="W:T (mm)")
+    ap.add_argument("--mesh", default="paper", choices=sorted(MESHES))
+    ap.add_argument("--touch", action="append", default=[], metavar="X,Y,R,D", help="a touch (mm); repeatable")
+    ap.add_argument("--phantom", help="a paper phantom K:I (benchmarks/deep_presses.py) instead of --touch")
+    ap.add_argument("--iterations", action="store_true", help="print every Newton iteration")
+    add_physics_arg(ap)
+    args = ap.parse_args(argv)
+    logging.basicConfig(level=logging.WARNING, format="%(message)s")
+    if args.phantom:
+        sys.path.insert(0, os.path.dirname(__file__))
+        from deep_presses import paper_phantoms
+
+        touches = list(paper_phantoms()[tuple(int(x) for x in args.phantom.split(":"))].touches)
+    else:
+        touches = [tuple(float(x) for x in t.split(",")) for t in args.touch]
+    if not touches:
+        ap.error("--touch or --phantom: expected a touch, got none")
+    physics = PhysicsSettings.from_dict(physics_from_args(args))
+    w, t = (float(x) for x in args.design.split(":"))
+    t0 = time.perf_counter()
+    mesh = mesh_design(LatticeDesign(width_mm=w, thickness_mm=t, pitch_mm=12.5), MESHES[args.mesh])
+    solver = IndentationSolver(mesh, physics.indent_settings())
+    print(f"design {args.design}, {args.mesh} mesh: {mesh.n_nodes} nodes, {solver.op.n_dofs} dofs; mesh and set-up "
+          f"{time.perf_counter() - t0:.1f} s; max_newton {solver.settings.max_newton}; touches {touches}", flush=True)
+    attempts, iters = [], []
+    newton, line_search = solver._newton, solver._line_search
+    d_max = max(float(x[3]) if not hasattr(x, "depth_mm") else x.depth_mm for x in touches)
+    state = {"from": 0.0}
+
+    def traced_line_search(u, du, ev, has_jump, isD):
+        try:
+            ev_new, u_new = line_search(u, du, ev, has_jump, isD)
+        except Exception:
+            iters.append((float(np.linalg.norm(ev.residual_N[~isD])), 0.0, np.nan, solver._shift))
+            raise
+        step = float(np.linalg.norm(u_new.ravel() - u.ravel())) / max(float(np.linalg.norm(du)), 1e-300)
+        iters.append((float(np.linalg.norm(ev.residual_N[~isD])), step, ev_new.energy_Nmm - ev.energy_Nmm,
+                      solver._shift))
+        return ev_new, u_new
+
+    def traced_newton(u, ev, cons, lam, final=True):
+        t = time.perf_counter()
+        del iters[:]
+        n0 = solver._n_solves
+        row = {"from_mm": state["from"], "to_mm": lam * d_max, "start": t - t_start}
+        try:
+            out = newton(u, ev, cons, lam, final)
+        except Exception as exc:
+            row.update(ok=False, why=getattr(exc, "reason", str(exc)), residual=getattr(exc, "residual", np.nan))
+            raise
+        else:
+            row.update(ok=True, why="", residual=out[2][-1])
+            state["from"] = lam * d_max
+            return out
+        finally:
+            row.update(seconds=time.perf_counter() - t, newton=solver._n_solves - n0, iters=list(iters))
+            attempts.append(row)
+            print(f"  {'ok    ' if row['ok'] else 'FAILED'} {row['from_mm']:.4f} -> {row['to_mm']:.4f} mm: "
+                  f"{row['newton']} Newton, {row['seconds']:.1f} s, residual {row['residual']:.3g} N {row['why']}",
+                  flush=True)
+            if args.iterations:
+                for k, (r, a, dE, sh) in enumerate(row["iters"]):
+                    print(f"      it {k}: |R| {r:.3g} N, alpha {a:.3g}, dE {dE:.3g} Nmm, shift {sh:g}")
+
+    solver._newton, solver._line_search = traced_newton, traced_line_search
+    t_start = time.perf_counter()
+    try:
+        res = solver.solve(touches)
+    except ConvergenceError as exc:
+        total = time.perf_counter() - t_start
+        ok = [i for i, a in enumerate(attempts) if a["ok"]]
+        tail = attempts[ok[-1] + 1:] if ok else attempts
+        t_last = attempts[ok[-1]]["start"] + attempts[ok[-1]]["seconds"] if ok else 0.0
+        print(f"GAVE UP after {total:.1f} s ({sum(a['newton'] for a in attempts)} Newton, "
+              f"{sum(not a['ok'] for a in attempts)} failed attempts); from the last accepted step "
+              f"({attempts[ok[-1]]['to_mm'] if ok else 0:.4f} mm) to the error: {total - t_last:.1f} s, "
+              f"{sum(a['newton'] for a in tail)} Newton, {len(tail)} failed attempts\n  {exc}")
+    else:
+        print(f"CONVERGED after {time.perf_counter() - t_start:.1f} s: {res.newton_steps} Newton, {res.load_steps} "
+              f"load steps, {res.step_halvings} halvings, forces {np.round(res.forces_N, 4).tolist()} N")
+
+
+if __name__ == "__main__":
+    main()
