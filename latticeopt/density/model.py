@@ -34,7 +34,7 @@ import numpy as np
 from ..coupled import PhysicsSettings, relative_change
 from ..design import LatticeDesign
 from ..electrics.forward import ForwardModel
-from ..electrics.sensitivity import weighted_sensitivities
+from ..electrics.sensitivity import transfer_sensitivities, weighted_sensitivities
 from ..errors import ParameterError
 from ..mechanics.indent import IndentationSolver
 from ..mechanics.sensitivity import moduli_sensitivity, stretch_pnorm
@@ -156,12 +156,17 @@ class DensityModel:
         return rho, (mu, kappa, sigma), (dmu, dkappa, dsigma)
 
     def isolation(self, density: np.ndarray, p: float = 8.0) -> tuple[float, np.ndarray]:
-        """How far the untouched layout's measurements exceed the uniform layer's, and its gradient.
+        """How far apart the untouched layout puts its electrodes, against the uniform layer, and its gradient.
 
-        ``I = (mean_r (Vref_r / Vu_r)^p)^(1/p)`` over the measurement rows, ``Vu`` the uniform layer's (the whole
-        layer gel) reference voltages: about 1 for a connected network, huge when gel pieces are joined only by the
-        insulating floor (current between electrodes on separate pieces must cross silicone). A bound on it keeps
-        an optimized layout one network. Electrics only: no press, no extra solve.
+        ``I = (mean_ij (R_ij / Ru_ij)^p)^(1/p)`` over every pair of electrodes ``i < j`` (120 for 16), ``R_ij`` the
+        two-terminal resistance between ``i`` and ``j`` (:attr:`~latticeopt.electrics.ForwardModel.pair_resistances`)
+        and ``Ru_ij`` the uniform layer's (the whole layer gel). About 1 for a connected network; huge when some
+        electrodes sit on a piece of gel joined to the others only through the insulating floor, whichever
+        electrodes that piece holds: current between them must cross silicone. The p-norm is within a factor
+        ``120^(1/p)`` (1.8 at ``p = 8``) of the worst pair's ratio. A bound on it keeps an optimized layout one
+        network. Electrics only, no press; every pair is a combination of the solved current patterns, so no
+        extra solve: ``dR_ij / d sigma_k = -int_k |grad u_ij|^2`` (:func:`~latticeopt.electrics.sensitivity.
+        transfer_sensitivities`).
 
         Returns
         -------
@@ -170,12 +175,15 @@ class DensityModel:
         """
         _, (_, _, sigma), (_, _, dsigma) = self.materials(density)
         ref = self.electrics.with_conductivity(sigma)
-        uniform = self.electrics.voltages  # the model's own electrics: the whole layer gel
-        q = ref.voltages / uniform  # same sign row by row (the same drive and measurement)
-        mean = float(np.mean(np.abs(q) ** p))
-        value = mean ** (1.0 / p)
-        weights = value ** (1.0 - p) * np.abs(q) ** (p - 1.0) * np.sign(q) / uniform / len(q)
-        d_sigma, _ = weighted_sensitivities(ref, weights)
+        uniform = self.electrics.pair_resistances  # the model's own electrics: the whole layer gel
+        q = ref.pair_resistances / uniform  # positive: a resistance
+        value = float(np.mean(q ** p)) ** (1.0 / p)
+        c = value ** (1.0 - p) * q ** (p - 1.0) / uniform / len(q)  # dI / dR_ij
+        n_e = ref.n_electrodes
+        i, j = np.triu_indices(n_e, 1)
+        e = np.zeros((len(q), n_e))
+        e[np.arange(len(q)), i], e[np.arange(len(q)), j] = 1.0, -1.0
+        d_sigma, _ = transfer_sensitivities(ref, e.T @ (c[:, None] * e))  # W = sum c_ij (e_i - e_j)(e_i - e_j)^T
         return value, self._to_cells(d_sigma * dsigma)
 
     def evaluate(self, density: np.ndarray, phantoms, gradient: bool = True,

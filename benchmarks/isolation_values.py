@@ -1,0 +1,63 @@
+"""The isolation measure of density layouts (``DensityModel.isolation``): a table for docs/gradients.md.
+
+    python benchmarks/isolation_values.py                                   # parametric layouts, default mesh
+    python benchmarks/isolation_values.py runs/optimize_freeform/density.npz runs/optimize_freeform_iso/density.npz
+
+Per layout (t = 3 mm, 50 x 50 cells, 2 mm mesh as in studies/optimize_freeform.toml unless changed): the pieces
+of its thresholded outline that hold electrodes, the pair measure (8-norm over the 120 electrode pairs of the
+two-terminal resistance relative to the uniform layer's), the worst pair's ratio and the electrodes of that pair,
+and for comparison the 8-norm over the 208 adjacent measurement rows of ``Vref / Vuniform`` that the first bound
+used. Electrics only (a minute or two per layout on a loaded machine, most of it the model's set-up).
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+from latticeopt import LatticeDesign, MeshSettings
+from latticeopt.density import DensityModel, density_of_design, load_density
+from latticeopt.density.outline import density_outline
+
+
+def row_measure(model: DensityModel, density: np.ndarray, p: float = 8.0) -> float:
+    """The first bound's measure: 8-norm over the measurement rows of ``Vref / Vuniform``."""
+    _, (_, _, sigma), _ = model.materials(density)
+    q = model.electrics.with_conductivity(sigma).voltages / model.electrics.voltages
+    return float(np.mean(np.abs(q) ** p) ** (1.0 / p))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("densities", nargs="*", help="density .npz files (cells must match --cells)")
+    ap.add_argument("--size", type=float, default=2.0, help="mesh size (mm)")
+    ap.add_argument("--cells", type=int, default=50)
+    ap.add_argument("--thickness", type=float, default=3.0)
+    args = ap.parse_args()
+    design = LatticeDesign(thickness_mm=args.thickness)
+    t0 = time.perf_counter()
+    model = DensityModel(design, args.cells, MeshSettings(size_mm=args.size))
+    print(f"model set-up {time.perf_counter() - t0:.1f} s, {model.mesh.n_nodes} nodes")
+    layouts = {f"square w = {w:g}": density_of_design(LatticeDesign(width_mm=w, thickness_mm=args.thickness),
+                                                       args.cells) for w in (1.0, 2.0, 4.0, 8.0)}
+    layouts["uniform layer"] = np.ones((args.cells, args.cells))
+    layouts.update({path: load_density(path) for path in args.densities})
+    pairs = np.transpose(np.triu_indices(design.n_electrodes, 1)) + 1
+    print("| layout | gel fraction | pieces (with electrodes) | pair measure | worst pair ratio (electrodes) "
+          "| row measure | seconds |")
+    print("|---|---|---|---|---|---|---|")
+    for name, d in layouts.items():
+        t = time.perf_counter()
+        value, _ = model.isolation(d)
+        _, (_, _, sigma), _ = model.materials(d)
+        q = model.electrics.with_conductivity(sigma).pair_resistances / model.electrics.pair_resistances
+        k = int(np.argmax(q))
+        _, report = density_outline(design, d, 0.5, 0.5)
+        print(f"| {name} | {d.mean():.3f} | {report['pieces']} | {value:.3g} | {q[k]:.3g} ({pairs[k][0]}, "
+              f"{pairs[k][1]}) | {row_measure(model, d):.3g} | {time.perf_counter() - t:.1f} |", flush=True)
+
+
+if __name__ == "__main__":
+    main()
