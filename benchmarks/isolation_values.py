@@ -1,25 +1,31 @@
 """The isolation measure of density layouts (``DensityModel.isolation``): a table for docs/gradients.md.
 
     python benchmarks/isolation_values.py                                   # parametric layouts, default mesh
-    python benchmarks/isolation_values.py runs/optimize_freeform/density.npz runs/optimize_freeform_iso/density.npz
+    python benchmarks/isolation_values.py runs/optimize_freeform/state.json runs/optimize_freeform_iso/state.json
 
 Per layout (t = 3 mm, 50 x 50 cells, 2 mm mesh as in studies/optimize_freeform.toml unless changed): the pieces
 of its thresholded outline that hold electrodes, the pair measure (8-norm over the 120 electrode pairs of the
 two-terminal resistance relative to the uniform layer's), the worst pair's ratio and the electrodes of that pair,
 and for comparison the 8-norm over the 208 adjacent measurement rows of ``Vref / Vuniform`` that the first bound
-used. Electrics only (a minute or two per layout on a loaded machine, most of it the model's set-up).
+used. A free-form run's ``state.json`` is read at its last iterate, projected at the last stage's sharpness (the
+run's ``density.npz``) and at the sharpness the bound reads (``isolation_beta``). Electrics only: about a second
+per layout after a 10 s set-up on a loaded machine.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import time
+from pathlib import Path
 
 import numpy as np
 
 from latticeopt import LatticeDesign, MeshSettings
 from latticeopt.density import DensityModel, density_of_design, load_density
 from latticeopt.density.outline import density_outline
+from latticeopt.density.projection import FreeForm
+from latticeopt.optimize.freeform import FreeformConfig
 
 
 def row_measure(model: DensityModel, density: np.ndarray, p: float = 8.0) -> float:
@@ -31,7 +37,8 @@ def row_measure(model: DensityModel, density: np.ndarray, p: float = 8.0) -> flo
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("densities", nargs="*", help="density .npz files (cells must match --cells)")
+    ap.add_argument("layouts", nargs="*", help="density .npz files or free-form state.json files (cells must match "
+                    "--cells)")
     ap.add_argument("--size", type=float, default=2.0, help="mesh size (mm)")
     ap.add_argument("--cells", type=int, default=50)
     ap.add_argument("--thickness", type=float, default=3.0)
@@ -43,7 +50,15 @@ def main() -> None:
     layouts = {f"square w = {w:g}": density_of_design(LatticeDesign(width_mm=w, thickness_mm=args.thickness),
                                                        args.cells) for w in (1.0, 2.0, 4.0, 8.0)}
     layouts["uniform layer"] = np.ones((args.cells, args.cells))
-    layouts.update({path: load_density(path) for path in args.densities})
+    for path in args.layouts:
+        if Path(path).suffix != ".json":
+            layouts[path] = load_density(path)
+            continue
+        state = json.loads(Path(path).read_text())
+        cfg = FreeformConfig(**{k: v for k, v in state["identity"]["config"].items() if k != "isolation_beta"})
+        ff = FreeForm(design, cfg.cells, cfg.symmetry, cfg.min_feature_mm, cfg.pad_mm)
+        for beta in (cfg.betas[-1], cfg.isolation_sharpness(cfg.betas[-1])):
+            layouts[f"{path} at beta {beta:g}"] = ff.density(np.asarray(state["x"]), beta)
     pairs = np.transpose(np.triu_indices(design.n_electrodes, 1)) + 1
     print("| layout | gel fraction | pieces (with electrodes) | pair measure | worst pair ratio (electrodes) "
           "| row measure | seconds |")

@@ -92,6 +92,8 @@ def test_freeform_run_resumes_after_a_crash_and_writes_a_castable_layout(tmp_pat
     assert "resuming" in text and "stage 2 of 2" in text
     history = [json.loads(x) for x in (out / "history.jsonl").read_text().splitlines()]
     assert [h["stage"] for h in history] == [0, 0, 1, 1]  # stage 1 was not run again
+    assert all(h["isolation"] >= 1.0 for h in history)  # the bound's measure, on every evaluation
+    assert f"isolation {history[-1]['isolation']:.4g} (bound 100)" in (out / "report.txt").read_text()
     for name in ("layout.geojson", "density.npz", "convergence.png", "layout_stage1.png", "layout_stage2.png",
                  "report.txt", "stl/hydrogel.stl"):
         assert (out / name).is_file(), name
@@ -105,6 +107,8 @@ def test_freeform_run_resumes_after_a_crash_and_writes_a_castable_layout(tmp_pat
     ("freeform.max_hydrogel_fraction=0", "freeform.max_hydrogel_fraction"),
     ("freeform.betas=[4, 1]", "freeform.betas"),
     ("freeform.bogus=1", "freeform.bogus"),
+    ("freeform.isolation_beta=0.5", "freeform.isolation_beta"),
+    ("freeform.max_isolation=0.5", "freeform.max_isolation"),
     ("mesh.mesher='tetwild'", "mesh.mesher"),
     ("physics.conductivity_law='linear'", "physics.conductivity_law"),
 ])
@@ -176,3 +180,24 @@ def test_a_layout_in_separate_pieces_is_flagged(tmp_path):
     d[:, 1] = 1.0   # joined by a channel along x = 10..20 mm: one piece, no warning
     write_outputs(DESIGN, d, FreeformConfig(cells=10, smooth_mm=0.0), tmp_path, [])
     assert "WARNING" not in (tmp_path / "report.txt").read_text()
+
+
+def test_isolation_bound_reads_the_layout_as_cast():
+    """A grey bridge conducts in the model at the stage's sharpness but is cut at the threshold when the layout is
+    cast: the bound reads the layout projected at isolation_beta, where the pieces show."""
+    from latticeopt import MeshSettings
+    from latticeopt.density import DensityModel
+    from latticeopt.optimize.freeform import FreeformConfig
+
+    cfg = FreeformConfig()
+    assert cfg.isolation_sharpness(16.0) == cfg.isolation_beta == 128.0
+    assert cfg.isolation_sharpness(500.0) == 500.0  # never blunter than the stage itself
+    n = 20
+    model = DensityModel(DESIGN, n, MeshSettings(size_mm=6.0))
+    ff = FreeForm(DESIGN, n, "none", min_feature_mm=0.0, pad_mm=0.0)  # the density is the projected variables
+    x = np.zeros((n, n))
+    x[:, [7, 12]] = x[[7, 12], :] = 1.0
+    x[:4, :4] = x[:4, -4:] = x[-4:, :4] = x[-4:, -4:] = 1.0  # corner pieces, each with two electrodes
+    x[2, 4:7] = x[2, 13:16] = x[17, 4:7] = x[17, 13:16] = 0.48  # bridges just below the threshold
+    assert model.isolation(ff.density(x.ravel(), 16.0))[0] < cfg.max_isolation
+    assert model.isolation(ff.density(x.ravel(), cfg.isolation_sharpness(16.0)))[0] > 100 * cfg.max_isolation
