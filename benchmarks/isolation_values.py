@@ -8,8 +8,8 @@ of its thresholded outline that hold electrodes, the pair measure (8-norm over t
 two-terminal resistance relative to the uniform layer's), the worst pair's ratio and the electrodes of that pair,
 and for comparison the 8-norm over the 208 adjacent measurement rows of ``Vref / Vuniform`` that the first bound
 used. A free-form run's ``state.json`` is read at its last iterate, projected at the last stage's sharpness (the
-run's ``density.npz``) and at the sharpness the bound reads (``isolation_beta``). Electrics only: about a second
-per layout after a 10 s set-up on a loaded machine.
+run's ``density.npz``) and at the sharpness the bound reads there (``isolation_sharpening`` times it). Electrics
+only: about a second per layout after a 10 s set-up on a loaded machine.
 """
 
 from __future__ import annotations
@@ -55,7 +55,8 @@ def main() -> None:
             layouts[path] = load_density(path)
             continue
         state = json.loads(Path(path).read_text())
-        cfg = FreeformConfig(**{k: v for k, v in state["identity"]["config"].items() if k != "isolation_beta"})
+        cfg = FreeformConfig(**{k: v for k, v in state["identity"]["config"].items()
+                                if k != "isolation_sharpening"})
         ff = FreeForm(design, cfg.cells, cfg.symmetry, cfg.min_feature_mm, cfg.pad_mm)
         for beta in (cfg.betas[-1], cfg.isolation_sharpness(cfg.betas[-1])):
             layouts[f"{path} at beta {beta:g}"] = ff.density(np.asarray(state["x"]), beta)

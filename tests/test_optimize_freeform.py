@@ -107,7 +107,7 @@ def test_freeform_run_resumes_after_a_crash_and_writes_a_castable_layout(tmp_pat
     ("freeform.max_hydrogel_fraction=0", "freeform.max_hydrogel_fraction"),
     ("freeform.betas=[4, 1]", "freeform.betas"),
     ("freeform.bogus=1", "freeform.bogus"),
-    ("freeform.isolation_beta=0.5", "freeform.isolation_beta"),
+    ("freeform.isolation_sharpening=0.5", "freeform.isolation_sharpening"),
     ("freeform.max_isolation=0.5", "freeform.max_isolation"),
     ("mesh.mesher='tetwild'", "mesh.mesher"),
     ("physics.conductivity_law='linear'", "physics.conductivity_law"),
@@ -184,14 +184,14 @@ def test_a_layout_in_separate_pieces_is_flagged(tmp_path):
 
 def test_isolation_bound_reads_the_layout_as_cast():
     """A grey bridge conducts in the model at the stage's sharpness but is cut at the threshold when the layout is
-    cast: the bound reads the layout projected at isolation_beta, where the pieces show."""
+    cast: the bound reads the layout projected isolation_sharpening times sharper, where the pieces show."""
     from latticeopt import MeshSettings
     from latticeopt.density import DensityModel
     from latticeopt.optimize.freeform import FreeformConfig
 
     cfg = FreeformConfig()
-    assert cfg.isolation_sharpness(16.0) == cfg.isolation_beta == 128.0
-    assert cfg.isolation_sharpness(500.0) == 500.0  # never blunter than the stage itself
+    assert cfg.isolation_sharpness(16.0) == 16.0 * cfg.isolation_sharpening == 128.0
+    assert FreeformConfig(isolation_sharpening=1.0).isolation_sharpness(4.0) == 4.0  # the stage's own layout
     n = 20
     model = DensityModel(DESIGN, n, MeshSettings(size_mm=6.0))
     ff = FreeForm(DESIGN, n, "none", min_feature_mm=0.0, pad_mm=0.0)  # the density is the projected variables

@@ -86,7 +86,7 @@ class FreeformConfig(DensityStudyConfig):
     TABLE: ClassVar[str] = "freeform"
     max_hydrogel_fraction: float = 0.5
     max_isolation: float | None = 100.0
-    isolation_beta: float = 128.0
+    isolation_sharpening: float = 8.0
     min_feature_mm: float = 4.0
     pad_mm: float = 4.0
     start: float = 0.5
@@ -108,12 +108,14 @@ class FreeformConfig(DensityStudyConfig):
         set_(self, "threshold", v.real("freeform.threshold", self.threshold, lo=0.0, lo_open=True, hi=1.0,
                                        hi_open=True))
         set_(self, "smooth_mm", v.real("freeform.smooth_mm", self.smooth_mm, lo=0.0, hi=10.0))
-        set_(self, "isolation_beta", v.real("freeform.isolation_beta", self.isolation_beta, lo=1.0, hi=1000.0))
+        set_(self, "isolation_sharpening", v.real("freeform.isolation_sharpening", self.isolation_sharpening,
+                                                  lo=1.0, hi=1000.0))
 
     def isolation_sharpness(self, beta: float) -> float:
         # the stage's grey cells conduct in the model but are cut at the threshold when the layout is cast: read
-        # the bound on a sharper projection, so that a grey bridge does not count as a join
-        return max(beta, self.isolation_beta)
+        # the bound on a sharper projection, so that a grey bridge does not count as a join; raised with the stage,
+        # since at the start every cell sits at the threshold, where a steep projection leaves MMA no room
+        return self.isolation_sharpening * beta
 
 
 @dataclass(frozen=True, eq=False)
@@ -376,7 +378,7 @@ def write_outputs(design, rho: np.ndarray, cfg, out: Path, history: list, geomet
         # reads large relative changes on rows across pieces that a cast sensor could not measure at all
         warn = (f"the layout is {report['pieces']} separate pieces of gel: no current flows between electrodes "
                 "on different pieces, so this is not a working sensor; its V_rel in the density model comes from the "
-                "insulating floor (lower max_isolation or raise isolation_beta)")
+                "insulating floor (lower max_isolation or raise isolation_sharpening)")
         lines.append("WARNING: " + warn)
         log.warning(warn)
     if "not_castable" in report:
