@@ -34,12 +34,13 @@ import numpy as np
 from ..coupled import PhysicsSettings, relative_change
 from ..design import LatticeDesign
 from ..electrics.forward import ForwardModel
-from ..electrics.sensitivity import transfer_sensitivities, weighted_sensitivities
+from ..electrics.sensitivity import weighted_sensitivities
 from ..errors import ParameterError
 from ..mechanics.indent import IndentationSolver
 from ..mechanics.sensitivity import moduli_sensitivity, stretch_pnorm
 from ..mesh import MeshSettings
 from ..touches import Touch
+from .connectivity import CellNetwork
 from .field import InterpolationLaw, check_density
 from .mesh import cell_matrix, density_mesh
 
@@ -144,6 +145,7 @@ class DensityModel:
         self.electrics = ForwardModel(self.mesh, p.sigma_S_per_m, p.contact_impedance_ohm_m2, current_A=p.current_A)
         if not np.array_equal(self.electrics.gel_tet_ids, self.layer_tets):
             raise AssertionError("the electrics' tets are the conductive layer's")  # pragma: no cover
+        self.network = CellNetwork(design, self.n, self.law, p.sigma_S_per_m, p.contact_impedance_ohm_m2)
         self.setup_seconds = time.perf_counter() - t0
 
     def materials(self, density: np.ndarray):
@@ -159,32 +161,19 @@ class DensityModel:
         """How far apart the untouched layout puts its electrodes, against the uniform layer, and its gradient.
 
         ``I = (mean_ij (R_ij / Ru_ij)^p)^(1/p)`` over every pair of electrodes ``i < j`` (120 for 16), ``R_ij`` the
-        two-terminal resistance between ``i`` and ``j`` (:attr:`~latticeopt.electrics.ForwardModel.pair_resistances`)
-        and ``Ru_ij`` the uniform layer's (the whole layer gel). About 1 for a connected network; huge when some
+        two-terminal resistance between ``i`` and ``j`` on the network of the layout's cells
+        (:class:`~latticeopt.density.connectivity.CellNetwork`: cells joined across their sides only, as the cast
+        outline joins them) and ``Ru_ij`` the uniform layer's. About 1 for a connected network; huge when some
         electrodes sit on a piece of gel joined to the others only through the insulating floor, whichever
-        electrodes that piece holds: current between them must cross silicone. The p-norm is within a factor
-        ``120^(1/p)`` (1.8 at ``p = 8``) of the worst pair's ratio. A bound on it keeps an optimized layout one
-        network. Electrics only, no press; every pair is a combination of the solved current patterns, so no
-        extra solve: ``dR_ij / d sigma_k = -int_k |grad u_ij|^2`` (:func:`~latticeopt.electrics.sensitivity.
-        transfer_sensitivities`).
+        electrodes that piece holds. Within a factor ``120^(1/p)`` (1.8 at ``p = 8``) of the worst pair's ratio. A
+        bound on it keeps an optimized layout one network. No press; one sparse factorization of ``n^2`` cells.
 
         Returns
         -------
         value : float
         gradient : ndarray, shape (n, n)
         """
-        _, (_, _, sigma), (_, _, dsigma) = self.materials(density)
-        ref = self.electrics.with_conductivity(sigma)
-        uniform = self.electrics.pair_resistances  # the model's own electrics: the whole layer gel
-        q = ref.pair_resistances / uniform  # positive: a resistance
-        value = float(np.mean(q ** p)) ** (1.0 / p)
-        c = value ** (1.0 - p) * q ** (p - 1.0) / uniform / len(q)  # dI / dR_ij
-        n_e = ref.n_electrodes
-        i, j = np.triu_indices(n_e, 1)
-        e = np.zeros((len(q), n_e))
-        e[np.arange(len(q)), i], e[np.arange(len(q)), j] = 1.0, -1.0
-        d_sigma, _ = transfer_sensitivities(ref, e.T @ (c[:, None] * e))  # W = sum c_ij (e_i - e_j)(e_i - e_j)^T
-        return value, self._to_cells(d_sigma * dsigma)
+        return self.network.isolation(density, p)
 
     def evaluate(self, density: np.ndarray, phantoms, gradient: bool = True,
                  warm: list[np.ndarray | None] | None = None) -> DensityEvaluation:
