@@ -130,6 +130,22 @@ def test_pair_resistances_are_direct_two_terminal_solves(perturbed_model):
         assert R[k] == pytest.approx(abs(U[src] - U[snk]), rel=1e-9)
 
 
+def test_transfer_sensitivities_of_a_pair_resistance_match_differences(perturbed_model):
+    from latticeopt.electrics.sensitivity import transfer_sensitivities
+
+    model = perturbed_model
+    W = np.zeros((model.n_electrodes, model.n_electrodes))
+    W[0, 0] = W[8, 8] = 1.0
+    W[0, 8] = W[8, 0] = -1.0  # (e_1 - e_9)(e_1 - e_9)^T: the resistance between electrodes 1 and 9
+    k = 7  # electrodes 1 and 9 are pair 7 in triu order
+    d_sigma, _ = transfer_sensitivities(model, W)
+    direction = np.random.default_rng(3).normal(size=model.mesh.n_tets)
+    h = 1e-6
+    plus, minus = (model.with_conductivity(model.sigma * (1 + s * h * direction)).pair_resistances[k] for s in (1, -1))
+    assert np.sum(d_sigma * model.sigma * direction) == pytest.approx((plus - minus) / (2 * h), rel=1e-6)
+    assert np.all(d_sigma <= 0)  # more conductivity anywhere never raises a two-terminal resistance
+
+
 def test_drive_voltage_sign_and_energy(perturbed_model):
     """I (U_src - U_snk) equals the power dissipated in the gel plus in the contacts (Tellegen)."""
     model = perturbed_model
