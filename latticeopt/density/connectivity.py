@@ -41,6 +41,11 @@ class CellNetwork:
         The conductivity law of a cell's density.
     sigma_S_per_m, contact_impedance_ohm_m2
         The gel's conductivity and the electrodes' contact impedance.
+
+    Attributes
+    ----------
+    uniform_resistances : ndarray
+        ``Ru_ij`` (ohm), the uniform layer's pair resistances.
     """
 
     def __init__(self, design, n: int, law: InterpolationLaw, sigma_S_per_m: float, contact_impedance_ohm_m2: float):
@@ -68,7 +73,7 @@ class CellNetwork:
         self._contact_cell, self._contact_len = np.concatenate(cells), np.concatenate(lengths)
         self._contact_owner = np.concatenate(owner)
         self.n_electrodes = len(design.electrodes())
-        self._uniform = self._solve(np.full(self.n * self.n, self.sigma))[0]
+        self.uniform_resistances = self._solve(np.full(self.n * self.n, self.sigma))[0]
 
     def _conductances(self, sigma: np.ndarray):
         """Edge and contact conductances (S) and their derivatives in the cells' conductivities."""
@@ -112,9 +117,9 @@ class CellNetwork:
         rho = check_density(density).ravel()
         sigma, dsigma = self.law.conductivity(rho, self.sigma)
         R, U, (g, (dg_da, dg_db), gc, dgc) = self._solve(sigma)
-        q = R / self._uniform
+        q = R / self.uniform_resistances
         value = float(np.mean(q ** p)) ** (1.0 / p)
-        c = value ** (1.0 - p) * q ** (p - 1.0) / self._uniform / len(q)  # dI / dR_ij
+        c = value ** (1.0 - p) * q ** (p - 1.0) / self.uniform_resistances / len(q)  # dI / dR_ij
         E = self.n_electrodes
         a, b = np.triu_indices(E, 1)
         e = np.zeros((len(q), E))
