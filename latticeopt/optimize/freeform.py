@@ -3,11 +3,13 @@
 A ``kind = "freeform"`` study (``studies/optimize_freeform.toml``; ``latticeopt optimize STUDY``) maximizes the mean
 V_rel over its phantoms (common random numbers) with respect to the variables of a
 :class:`~latticeopt.density.projection.FreeForm` map (symmetry, minimum-feature filter, Heaviside projection, gel
-pads at the electrodes), subject to bounds on the hydrogel fraction and optionally a cap on the gel's stretch
-measure, with nlopt's ``LD_MMA`` or ``LD_CCSAQ``. The projection sharpness ``beta`` is raised in stages
-(continuation) so the layout ends 0/1. Every evaluation appends to ``history.jsonl`` and rewrites ``state.json``
-(both atomically) in the output folder: a killed run restarts from its last iterate of its current stage. At the
-end the layout is thresholded, cleaned and written as GeoJSON (and DXF with ``ezdxf``), its region solids as STL.
+pads at the electrodes), subject to bounds on the hydrogel fraction, a cap on how far apart the layout puts its
+electrodes (``max_isolation``: one piece of gel, :meth:`~latticeopt.density.DensityModel.isolation`) and optionally
+a cap on the gel's stretch measure, with nlopt's ``LD_MMA`` or ``LD_CCSAQ``. The projection sharpness ``beta`` is
+raised in stages (continuation) so the layout ends 0/1. Every evaluation appends to ``history.jsonl`` and rewrites
+``state.json`` (both atomically) in the output folder: a killed run restarts from its last iterate of its current
+stage. At the end the layout is thresholded, cleaned and written as GeoJSON (and DXF with ``ezdxf``), its region
+solids as STL.
 """
 
 from __future__ import annotations
