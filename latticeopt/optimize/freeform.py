@@ -14,6 +14,7 @@ solids as STL.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import math
@@ -89,6 +90,7 @@ class FreeformConfig(DensityStudyConfig):
     max_hydrogel_fraction: float = 0.5
     max_isolation: float | None = 100.0
     isolation_sharpening: float = 8.0
+    isolation_threshold: float = 0.6
     min_feature_mm: float = 4.0
     pad_mm: float = 4.0
     start: float = 0.5
@@ -112,6 +114,8 @@ class FreeformConfig(DensityStudyConfig):
         set_(self, "smooth_mm", v.real("freeform.smooth_mm", self.smooth_mm, lo=0.0, hi=10.0))
         set_(self, "isolation_sharpening", v.real("freeform.isolation_sharpening", self.isolation_sharpening,
                                                   lo=1.0, hi=1000.0))
+        set_(self, "isolation_threshold", v.real("freeform.isolation_threshold", self.isolation_threshold,
+                                                 lo=0.05, hi=0.95))
 
     def isolation_sharpness(self, beta: float) -> float:
         # the stage's grey cells conduct in the model but are cut at the threshold when the layout is cast: read
@@ -160,8 +164,10 @@ def run_freeform(design, phantoms: list, mesh_settings, physics, cfg: FreeformCo
 
     ff = FreeForm(design, cfg.cells, cfg.symmetry, cfg.min_feature_mm, cfg.pad_mm)
     n = ff.n_variables
+    # the bound reads the layout eroded to isolation_threshold: a bridge parked at the outline's threshold is cut
+    eroded = dataclasses.replace(ff, eta=cfg.isolation_threshold)
     x, history, rho, ev = optimize_density(design, phantoms, mesh_settings, physics, cfg, ff, np.full(n, cfg.start),
-                                           np.zeros(n), np.ones(n), out_dir, progress)
+                                           np.zeros(n), np.ones(n), out_dir, progress, isolation_param=eroded)
     files = write_outputs(design, rho, cfg, Path(out_dir), history, extra_lines=(
         f"free-form layout: minimum feature {cfg.min_feature_mm:g} mm, pads {cfg.pad_mm:g} mm",))
     return FreeformResult(density=rho, variables=x, v_rel=ev.v_rel, hydrogel_fraction=float(rho.mean()),
@@ -169,11 +175,11 @@ def run_freeform(design, phantoms: list, mesh_settings, physics, cfg: FreeformCo
 
 
 def optimize_density(design, phantoms: list, mesh_settings, physics, cfg, param, x0: np.ndarray, lower: np.ndarray,
-                     upper: np.ndarray, out_dir, progress: Callable[[str], None] | None = print):
+                     upper: np.ndarray, out_dir, progress: Callable[[str], None] | None = print, isolation_param=None):
     """The resumable MMA loop over a density parametrization ``param`` (``n_variables``, ``density(x, beta)``,
     ``gradient(x, beta, d_rho)``): stages ``cfg.betas`` of ``cfg.iterations_per_beta`` iterations, the hydrogel
-    fraction bounds, stretch cap and isolation bound of ``cfg`` as constraints (the last read on the layout projected
-    at ``cfg.isolation_sharpness(beta)``). Returns ``(x, history, density, evaluation)``."""
+    fraction bounds, stretch cap and isolation bound of ``cfg`` as constraints (the last on ``isolation_param``'s
+    layout, default ``param``'s, at ``cfg.isolation_sharpness(beta)``). Returns ``(x, history, density, ev)``."""
     import nlopt
 
     from ..density import DensityModel
@@ -207,6 +213,7 @@ def optimize_density(design, phantoms: list, mesh_settings, physics, cfg, param,
     warm: list | None = None
     cache: dict = {}
     iso_cache: dict = {}
+    iso_param = param if isolation_param is None else isolation_param
 
     def evaluate(xv: np.ndarray, beta: float):
         nonlocal warm
@@ -225,8 +232,8 @@ def optimize_density(design, phantoms: list, mesh_settings, physics, cfg, param,
         key = (xv.tobytes(), b)
         if key not in iso_cache:
             iso_cache.clear()
-            value, g = model.isolation(ff.density(xv, b))
-            iso_cache[key] = value, ff.gradient(xv, b, g)
+            value, g = model.isolation(iso_param.density(xv, b))
+            iso_cache[key] = value, iso_param.gradient(xv, b, g)
         return iso_cache[key]
 
     ones = np.full((cfg.cells, cfg.cells), 1.0 / cfg.cells ** 2)
@@ -380,7 +387,7 @@ def write_outputs(design, rho: np.ndarray, cfg, out: Path, history: list, geomet
         # reads large relative changes on rows across pieces that a cast sensor could not measure at all
         warn = (f"the layout is {report['pieces']} separate pieces of gel: no current flows between electrodes "
                 "on different pieces, so this is not a working sensor; its V_rel in the density model comes from the "
-                "insulating floor (lower max_isolation or raise isolation_sharpening)")
+                "insulating floor (lower max_isolation, raise isolation_threshold)")
         lines.append("WARNING: " + warn)
         log.warning(warn)
     if "not_castable" in report:
