@@ -108,6 +108,7 @@ def test_freeform_run_resumes_after_a_crash_and_writes_a_castable_layout(tmp_pat
     ("freeform.betas=[4, 1]", "freeform.betas"),
     ("freeform.bogus=1", "freeform.bogus"),
     ("freeform.isolation_sharpening=0.5", "freeform.isolation_sharpening"),
+    ("freeform.isolation_threshold=1.5", "freeform.isolation_threshold"),
     ("freeform.max_isolation=0.5", "freeform.max_isolation"),
     ("mesh.mesher='tetwild'", "mesh.mesher"),
     ("physics.conductivity_law='linear'", "physics.conductivity_law"),
@@ -183,8 +184,11 @@ def test_a_layout_in_separate_pieces_is_flagged(tmp_path):
 
 
 def test_isolation_bound_reads_the_layout_as_cast():
-    """A grey bridge conducts in the model at the stage's sharpness but is cut at the threshold when the layout is
-    cast: the bound reads the layout projected isolation_sharpening times sharper, where the pieces show."""
+    """Bridges below the cast's threshold conduct in the model at the stage's sharpness, and bridges parked just
+    below it still conduct at any finite sharpness (what an optimizer bounded there did): the bound reads the
+    layout sharpened with the stage and eroded to isolation_threshold, where only solid bridges join."""
+    import dataclasses
+
     from latticeopt import MeshSettings
     from latticeopt.density import DensityModel
     from latticeopt.optimize.freeform import FreeformConfig
@@ -195,9 +199,19 @@ def test_isolation_bound_reads_the_layout_as_cast():
     n = 20
     model = DensityModel(DESIGN, n, MeshSettings(size_mm=6.0))
     ff = FreeForm(DESIGN, n, "none", min_feature_mm=0.0, pad_mm=0.0)  # the density is the projected variables
+    eroded = dataclasses.replace(ff, eta=cfg.isolation_threshold)
     x = np.zeros((n, n))
     x[:, [7, 12]] = x[[7, 12], :] = 1.0
     x[:4, :4] = x[:4, -4:] = x[-4:, :4] = x[-4:, -4:] = 1.0  # corner pieces, each with two electrodes
-    x[2, 4:7] = x[2, 13:16] = x[17, 4:7] = x[17, 13:16] = 0.48  # bridges just below the threshold
-    assert model.isolation(ff.density(x.ravel(), 16.0))[0] < cfg.max_isolation
-    assert model.isolation(ff.density(x.ravel(), cfg.isolation_sharpness(16.0)))[0] > 100 * cfg.max_isolation
+
+    def bridged(value):
+        b = x.copy()
+        b[2, 4:7] = b[2, 13:16] = b[17, 4:7] = b[17, 13:16] = value
+        return b.ravel()
+
+    sharp = cfg.isolation_sharpness(16.0)
+    assert model.isolation(ff.density(bridged(0.48), 16.0))[0] < cfg.max_isolation
+    assert model.isolation(ff.density(bridged(0.48), sharp))[0] > 100 * cfg.max_isolation
+    assert model.isolation(ff.density(bridged(0.495), sharp))[0] < cfg.max_isolation
+    assert model.isolation(eroded.density(bridged(0.495), sharp))[0] > 100 * cfg.max_isolation
+    assert model.isolation(eroded.density(bridged(0.7), sharp))[0] < 10.0  # a solid bridge joins
