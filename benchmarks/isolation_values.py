@@ -9,13 +9,15 @@ the two-terminal resistance relative to the uniform layer's, on the network of t
 and electrodes; the same 8-norm with the finite-element electrics' pair resistances (which conduct across cell
 corners); and the 8-norm over the 208 adjacent measurement rows of ``Vref / Vuniform`` that the first bound used.
 A free-form run's ``state.json`` is read at its last iterate, projected at the last stage's sharpness (the run's
-``density.npz``) and at the sharpness the bound reads there (``isolation_sharpening`` times it). About a second per
+``density.npz``), at the sharpness the bound reads there (``isolation_sharpening`` times it), and so sharpened and
+eroded to ``isolation_threshold`` (what the bound reads). About a second per
 layout after a 10 s set-up on a loaded machine (the network alone: 0.03 s).
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import time
 from pathlib import Path
@@ -63,11 +65,14 @@ def main() -> None:
             layouts[path] = load_density(path)
             continue
         state = json.loads(Path(path).read_text())
-        cfg = FreeformConfig(**{k: v for k, v in state["identity"]["config"].items()
-                                if k != "isolation_sharpening"})
+        fields = {f.name for f in dataclasses.fields(FreeformConfig)}
+        cfg = FreeformConfig(**{k: v for k, v in state["identity"]["config"].items() if k in fields})
         ff = FreeForm(design, cfg.cells, cfg.symmetry, cfg.min_feature_mm, cfg.pad_mm)
-        for beta in (cfg.betas[-1], cfg.isolation_sharpness(cfg.betas[-1])):
-            layouts[f"{path} at beta {beta:g}"] = ff.density(np.asarray(state["x"]), beta)
+        x, last, sharp = np.asarray(state["x"]), cfg.betas[-1], cfg.isolation_sharpness(cfg.betas[-1])
+        layouts[f"{path} eroded to {cfg.isolation_threshold:g} at beta {sharp:g}"] = dataclasses.replace(
+            ff, eta=cfg.isolation_threshold).density(x, sharp)
+        for beta in (last, sharp):
+            layouts[f"{path} at beta {beta:g}"] = ff.density(x, beta)
     pairs = np.transpose(np.triu_indices(design.n_electrodes, 1)) + 1
     print("| layout | gel fraction | pieces (with electrodes) | isolation | worst pair ratio (electrodes) "
           "| finite-element pairs | rows | seconds |")
