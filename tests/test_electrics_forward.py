@@ -53,6 +53,7 @@ def test_bar_resistance(weight):
     rel = abs(model.voltages[0] / current - R) / R
     print(f"bar resistance: model {model.voltages[0] / current:.6f} ohm, analytic {R:.6f} ohm, rel {rel:.1e}")
     assert rel < 5e-3
+    assert model.pair_resistances == pytest.approx([model.voltages[0] / current], rel=1e-12)
     # Without a design the electrode width is the square root of the (covered) patch area.
     covered = W * H * (1.0 if weight is None else weight)
     assert model.contact_number == pytest.approx(zc * sigma / (np.sqrt(covered) * 1e-3))
@@ -107,6 +108,42 @@ def test_current_conservation_with_independent_stiffness(perturbed_model):
         through = np.array([r[p].sum() for p in patches])
         np.testing.assert_allclose(through, I, atol=1e-9 * model.current_A)
         assert abs(through.sum()) < 1e-12
+
+
+def test_pair_resistances_are_direct_two_terminal_solves(perturbed_model):
+    """R_ij from the transfer matrix equals the voltage of a solve injecting +1 A at i and -1 A at j, for
+    neighbours and across the sensor, and the adjacent pairs' equal the drive voltages per ampere."""
+    model = perturbed_model
+    R = model.pair_resistances
+    n_e = model.n_electrodes
+    i, j = np.triu_indices(n_e, 1)
+    assert R.shape == (n_e * (n_e - 1) // 2,) and np.all(R > 0)
+    dofs = model._topology.electrode_dofs
+    for a, b in ((0, 1), (0, 8), (3, 12), (14, 15)):
+        rhs = np.zeros(model.n_dof)
+        rhs[dofs[a]], rhs[dofs[b]] = 1.0, -1.0
+        phi = model.solve(rhs)
+        assert R[np.flatnonzero((i == a) & (j == b))[0]] == pytest.approx(phi[dofs[a]] - phi[dofs[b]], rel=1e-9)
+    for d, (src, snk) in enumerate(model.protocol.drive_pairs):
+        U = model.electrode_potentials[d] / model.current_A
+        k = np.flatnonzero((i == min(src, snk)) & (j == max(src, snk)))[0]
+        assert R[k] == pytest.approx(abs(U[src] - U[snk]), rel=1e-9)
+
+
+def test_transfer_sensitivities_of_a_pair_resistance_match_differences(perturbed_model):
+    from latticeopt.electrics.sensitivity import transfer_sensitivities
+
+    model = perturbed_model
+    W = np.zeros((model.n_electrodes, model.n_electrodes))
+    W[0, 0] = W[8, 8] = 1.0
+    W[0, 8] = W[8, 0] = -1.0  # (e_1 - e_9)(e_1 - e_9)^T: the resistance between electrodes 1 and 9
+    k = 7  # electrodes 1 and 9 are pair 7 in triu order
+    d_sigma, _ = transfer_sensitivities(model, W)
+    direction = np.random.default_rng(3).normal(size=model.mesh.n_tets)
+    h = 1e-6
+    plus, minus = (model.with_conductivity(model.sigma * (1 + s * h * direction)).pair_resistances[k] for s in (1, -1))
+    assert np.sum(d_sigma * model.sigma * direction) == pytest.approx((plus - minus) / (2 * h), rel=1e-6)
+    assert np.all(d_sigma <= 0)  # more conductivity anywhere never raises a two-terminal resistance
 
 
 def test_drive_voltage_sign_and_energy(perturbed_model):

@@ -92,6 +92,8 @@ def test_freeform_run_resumes_after_a_crash_and_writes_a_castable_layout(tmp_pat
     assert "resuming" in text and "stage 2 of 2" in text
     history = [json.loads(x) for x in (out / "history.jsonl").read_text().splitlines()]
     assert [h["stage"] for h in history] == [0, 0, 1, 1]  # stage 1 was not run again
+    assert all(h["isolation"] >= 1.0 for h in history)  # the bound's measure, on every evaluation
+    assert f"isolation {history[-1]['isolation']:.4g} (bound 100)" in (out / "report.txt").read_text()
     for name in ("layout.geojson", "density.npz", "convergence.png", "layout_stage1.png", "layout_stage2.png",
                  "report.txt", "stl/hydrogel.stl"):
         assert (out / name).is_file(), name
@@ -105,6 +107,9 @@ def test_freeform_run_resumes_after_a_crash_and_writes_a_castable_layout(tmp_pat
     ("freeform.max_hydrogel_fraction=0", "freeform.max_hydrogel_fraction"),
     ("freeform.betas=[4, 1]", "freeform.betas"),
     ("freeform.bogus=1", "freeform.bogus"),
+    ("freeform.isolation_sharpening=0.5", "freeform.isolation_sharpening"),
+    ("freeform.isolation_threshold=1.5", "freeform.isolation_threshold"),
+    ("freeform.max_isolation=0.5", "freeform.max_isolation"),
     ("mesh.mesher='tetwild'", "mesh.mesher"),
     ("physics.conductivity_law='linear'", "physics.conductivity_law"),
 ])
@@ -165,7 +170,8 @@ def test_graded_study_writes_an_exact_layout(tmp_path, monkeypatch, capsys):
 def test_a_layout_in_separate_pieces_is_flagged(tmp_path):
     """Two channels that each join two electrodes but not each other: no current flows between them in a cast
     sensor, so the report must say so rather than present the density model's reading."""
-    from latticeopt.optimize.freeform import FreeformConfig, write_outputs
+    from latticeopt.optimize.freeform import FreeformConfig
+    from latticeopt.optimize.layout_outputs import write_outputs
 
     d = np.zeros((10, 10))
     d[1, :] = 1.0   # y = 10..20 mm: electrodes at y = 12.5 on both sides
@@ -176,3 +182,37 @@ def test_a_layout_in_separate_pieces_is_flagged(tmp_path):
     d[:, 1] = 1.0   # joined by a channel along x = 10..20 mm: one piece, no warning
     write_outputs(DESIGN, d, FreeformConfig(cells=10, smooth_mm=0.0), tmp_path, [])
     assert "WARNING" not in (tmp_path / "report.txt").read_text()
+
+
+def test_isolation_bound_reads_the_layout_as_cast():
+    """Bridges below the cast's threshold conduct in the model at the stage's sharpness, and bridges parked just
+    below it still conduct at any finite sharpness (what an optimizer bounded there did): the bound reads the
+    layout sharpened with the stage and eroded to isolation_threshold, where only solid bridges join."""
+    import dataclasses
+
+    from latticeopt import MeshSettings
+    from latticeopt.density import DensityModel
+    from latticeopt.optimize.freeform import FreeformConfig
+
+    cfg = FreeformConfig()
+    assert cfg.isolation_sharpness(16.0) == 16.0 * cfg.isolation_sharpening == 128.0
+    assert FreeformConfig(isolation_sharpening=1.0).isolation_sharpness(4.0) == 4.0  # the stage's own layout
+    n = 20
+    model = DensityModel(DESIGN, n, MeshSettings(size_mm=6.0))
+    ff = FreeForm(DESIGN, n, "none", min_feature_mm=0.0, pad_mm=0.0)  # the density is the projected variables
+    eroded = dataclasses.replace(ff, eta=cfg.isolation_threshold)
+    x = np.zeros((n, n))
+    x[:, [7, 12]] = x[[7, 12], :] = 1.0
+    x[:4, :4] = x[:4, -4:] = x[-4:, :4] = x[-4:, -4:] = 1.0  # corner pieces, each with two electrodes
+
+    def bridged(value):
+        b = x.copy()
+        b[2, 4:7] = b[2, 13:16] = b[17, 4:7] = b[17, 13:16] = value
+        return b.ravel()
+
+    sharp = cfg.isolation_sharpness(16.0)
+    assert model.isolation(ff.density(bridged(0.48), 16.0))[0] < cfg.max_isolation
+    assert model.isolation(ff.density(bridged(0.48), sharp))[0] > 100 * cfg.max_isolation
+    assert model.isolation(ff.density(bridged(0.495), sharp))[0] < cfg.max_isolation
+    assert model.isolation(eroded.density(bridged(0.495), sharp))[0] > 100 * cfg.max_isolation
+    assert model.isolation(eroded.density(bridged(0.7), sharp))[0] < 10.0  # a solid bridge joins

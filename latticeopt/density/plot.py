@@ -47,3 +47,21 @@ def plot_sensitivity(density: np.ndarray, gradient: np.ndarray, path, title: str
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def plot_density(density: np.ndarray, path, size_mm: float, title: str) -> Path:
+    """A density layout (0 silicone to 1 gel, ``y`` up) with a colour bar, written to the PNG ``path``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(4.6, 4.2), layout="constrained")
+    im = ax.imshow(density, origin="lower", extent=(0, size_mm, 0, size_mm), cmap="Blues", vmin=0, vmax=1)
+    fig.colorbar(im, ax=ax, label="density (1 = hydrogel)")
+    ax.set_title(title, fontsize=9, wrap=True)
+    ax.set_xlabel("x (mm)")
+    ax.set_ylabel("y (mm)")
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return Path(path)

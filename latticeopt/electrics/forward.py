@@ -273,6 +273,16 @@ class ForwardModel:
         return self._basis[self._topology.electrode_dofs]
 
     @property
+    def pair_resistances(self) -> np.ndarray:
+        """Two-terminal transfer resistance (ohm) of every electrode pair ``i < j``, shape ``(n_e (n_e - 1) / 2,)`` in
+        ``numpy.triu_indices(n_e, 1)`` order: the voltage between ``i`` and ``j`` per ampere injected at ``i`` and
+        taken out at ``j`` (CEM: through both contact impedances). ``e_i - e_j`` is a combination of the solved
+        current patterns, so it costs no solve: ``R_ij = T_ii + T_jj - T_ij - T_ji``."""
+        T = self.transfer_matrix
+        i, j = np.triu_indices(self.n_electrodes, 1)
+        return T[i, i] + T[j, j] - T[i, j] - T[j, i]
+
+    @property
     def electrode_potentials(self) -> np.ndarray:
         """Electrode potentials (V) under each drive, shape ``(n_drives, n_electrodes)``."""
         return self.current_A * self.protocol.drive_currents @ self.transfer_matrix.T

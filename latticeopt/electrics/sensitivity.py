@@ -47,7 +47,37 @@ def weighted_sensitivities(model: ForwardModel, row_weights: np.ndarray) -> tupl
     p = model.protocol
     a = np.asarray(row_weights, dtype=float)
     W = p.measure.T @ (a[:, None] * p.drive_currents[p.row_drive])  # (n_e, n_e)
-    scale = -model.current_A
+    d_sigma, d_nodes = transfer_sensitivities(model, W)
+    return model.current_A * d_sigma, model.current_A * d_nodes
+
+
+def transfer_sensitivities(model: ForwardModel, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Gradient of ``s = sum_lm W_lm T_lm`` (ohm, ``T`` the :attr:`~.forward.ForwardModel.transfer_matrix`) with
+    respect to tet conductivities and hydrogel node positions.
+
+    Any weighted sum of electrode voltages under zero-sum currents is such a sum: a measurement row is
+    ``W = I m_r d_r^T`` (:func:`weighted_sensitivities`), the two-terminal resistance between electrodes ``i`` and
+    ``j`` is ``W = (e_i - e_j)(e_i - e_j)^T``.
+
+    Parameters
+    ----------
+    model
+        A solved forward model (deformed or not).
+    weights : ndarray, shape (n_electrodes, n_electrodes)
+        ``W``.
+
+    Returns
+    -------
+    d_sigma : ndarray, shape (n_gel_tets,)
+        ``ds / d sigma_k`` (ohm per S/m), tets in :attr:`ForwardModel.gel_tet_ids` order.
+    d_nodes : ndarray, shape (n_gel_nodes, 3)
+        ``ds / d x`` (ohm per mm) for the nodes of ``model.mesh`` (the hydrogel mesh).
+    """
+    W = np.asarray(weights, dtype=float)
+    n_e = model.n_electrodes
+    if W.shape != (n_e, n_e):
+        raise ValueError(f"weights: expected shape ({n_e}, {n_e}), got {W.shape}")
+    scale = -1.0
     G = model.basis_gradients()  # (M, n_e, 3), V/m per A
     GW = np.matmul(W.T, G)  # (M, n_e, 3): sum_l W_lm grad b_l
     S = np.matmul(GW.transpose(0, 2, 1), G)  # sum_lm W_lm grad b_l (x) grad b_m

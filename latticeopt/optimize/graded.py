@@ -20,7 +20,8 @@ import numpy as np
 
 from .. import _validate as v
 from ..errors import ParameterError
-from .freeform import DensityStudyConfig, FreeformResult, optimize_density, write_outputs
+from .freeform import DensityStudyConfig, FreeformResult, optimize_density
+from .layout_outputs import write_outputs
 
 
 @dataclass(frozen=True)
