@@ -93,7 +93,10 @@ def test_freeform_run_resumes_after_a_crash_and_writes_a_castable_layout(tmp_pat
     history = [json.loads(x) for x in (out / "history.jsonl").read_text().splitlines()]
     assert [h["stage"] for h in history] == [0, 0, 1, 1]  # stage 1 was not run again
     assert all(h["isolation"] >= 1.0 for h in history)  # the bound's measure, on every evaluation
-    assert f"isolation {history[-1]['isolation']:.4g} (bound 100)" in (out / "report.txt").read_text()
+    final = json.loads((out / "final.json").read_text())  # the layout nlopt returned, which the outline is
+    report = (out / "report.txt").read_text()
+    assert f"final layout: mean V_rel {final['v_rel']:.5f}, isolation {final['isolation']:.4g} (bound 100)" in report
+    assert final["isolation"] >= 1.0 and f"isolation {history[-1]['isolation']:.4g}" in report
     for name in ("layout.geojson", "density.npz", "convergence.png", "layout_stage1.png", "layout_stage2.png",
                  "report.txt", "stl/hydrogel.stl"):
         assert (out / name).is_file(), name

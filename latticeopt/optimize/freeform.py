@@ -315,7 +315,10 @@ def optimize_density(design, phantoms: list, mesh_settings, physics, cfg, param,
                      f"stage {k + 1}: beta {beta:g}, {cfg.cells}x{cfg.cells} cells, {len(phantoms)} phantoms")
     beta = cfg.betas[-1]
     rho, ev, _, pe = evaluate(np.asarray(x), beta)
-    _write_json(out / "final.json", final_record(ev, rho, pe, identity))
+    final = final_record(ev, rho, pe, identity)
+    if cfg.max_isolation is not None:  # the returned point's, not the last evaluated one's
+        final["isolation"] = isolation(np.asarray(x), beta)[0]
+    _write_json(out / "final.json", final)
     return np.asarray(x), history, rho, ev
 
 

@@ -81,10 +81,9 @@ def write_outputs(design, rho: np.ndarray, cfg, out: Path, history: list, geomet
              f"final density: gel fraction {rho.mean():.4f}, grey cells {np.mean((rho > 0.05) & (rho < 0.95)):.3f}"]
     if history:
         last = history[-1]
-        lines.append(f"last evaluation: mean V_rel {last['v_rel']:.5f}, stretch {last['stretch']:.4f}"
-                     + (f", isolation {last['isolation']:.4g} (bound {cfg.max_isolation:g})" if "isolation" in last
-                        else ""))
-    lines.extend(final_lines(out))
+        lines.append(f"last evaluation (not necessarily the result): mean V_rel {last['v_rel']:.5f}, stretch "
+                     f"{last['stretch']:.4f}" + (f", isolation {last['isolation']:.4g}" if "isolation" in last else ""))
+    lines.extend(final_lines(out, cfg.max_isolation))
     lines.append(f"{outline}: gel fraction "
                  f"{report['hydrogel_fraction']:.4f}, {report['pieces']} pieces, {report['pieces_dropped']} "
                  f"dropped (no electrode), {report['dropped_area_mm2']:.1f} mm^2 dropped")

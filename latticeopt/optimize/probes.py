@@ -238,8 +238,9 @@ def final_record(ev, density: np.ndarray, pe: ProbeEvaluation | None, identity: 
     return out
 
 
-def final_lines(out) -> list[str]:
-    """The report's lines on the final layout's probes (from ``final.json`` in ``out``; none without probes)."""
+def final_lines(out, max_isolation: float | None = None) -> list[str]:
+    """The report's lines on the layout the optimizer returned (from ``final.json`` in ``out``): its mean V_rel,
+    its isolation against ``max_isolation`` when bounded, and its probes when pressed."""
     import json
     from pathlib import Path
 
@@ -247,15 +248,17 @@ def final_lines(out) -> list[str]:
     if not path.is_file():
         return []
     final = json.loads(path.read_text())
+    iso = (f", isolation {final['isolation']:.4g} (bound {max_isolation:g})"
+           if "isolation" in final and max_isolation is not None else "")
     if "uniformity" not in final:
-        return []
+        return [f"final layout: mean V_rel {final['v_rel']:.5f}{iso}"]
     m = len(final["probe_v_rel"])
     floor = floor_of(final)
     met = [] if floor is None else [
         f"uniformity floor {floor:g}: met" if final["uniformity"] >= floor - FLOOR_TOL else
         f"WARNING: uniformity floor {floor:g} not reached ({final['uniformity']:.4f}): the optimizer found no layout "
         "this uniform within its iterations (run more, or lower the floor)"]
-    return [f"final layout: mean V_rel {final['v_rel']:.5f}; over the {int(round(m ** 0.5))} x "
+    return [f"final layout: mean V_rel {final['v_rel']:.5f}{iso}; over the {int(round(m ** 0.5))} x "
             f"{int(round(m ** 0.5))} probe grid uniformity (1 - CV) {final['uniformity']:.4f}, worst-to-best "
             f"{final['probe_worst_to_best']:.4f}, probe V_rel {min(final['probe_v_rel']):.5f} to "
             f"{max(final['probe_v_rel']):.5f}", *met]
