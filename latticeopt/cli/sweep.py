@@ -21,8 +21,9 @@ def register(sub) -> None:
                     "yet, in parallel, writing each result the moment it finishes. Re-run the same command "
                     "after an interruption to resume. Writes into the study's out folder (or --out): "
                     "results.sqlite (the store), study.json, latticeopt.lock (held while it runs), results.csv and "
-                    "report.txt; for a grid summary.csv, vrel_lines.png and vrel_heatmap.png (two fields); for a "
-                    "press study press.csv and press.png; excluded.csv and error.log when phantoms fail. "
+                    "report.txt; for a grid summary.csv, paired.csv (every design against the best), "
+                    "vrel_lines.png and vrel_heatmap.png (two fields); for a press study press.csv and press.png; "
+                    "excluded.csv and error.log when phantoms fail. "
                     "Schema: docs/studies.md.")
     p.add_argument("study", metavar="STUDY.toml", help="study file (e.g. studies/quick.toml)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
