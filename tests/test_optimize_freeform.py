@@ -102,6 +102,16 @@ def test_freeform_run_resumes_after_a_crash_and_writes_a_castable_layout(tmp_pat
         assert (out / name).is_file(), name
     assert main(["mesh", "--layout", str(out / "layout.geojson"), "--thickness", "3", "--size", "8", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["region_volumes_mm3"]["hydrogel"] > 0
+    # the outline keys shape only the written layout: a finished run re-outlined without smoothing writes the
+    # cell staircase (every edge axis-aligned, what the grid mesher meshes exactly) and computes no new iterate
+    assert main([*argv, "--set", "freeform.smooth_mm=0"]) == 0
+    assert len((out / "history.jsonl").read_text().splitlines()) == 4
+    ring = json.loads((out / "layout.geojson").read_text())["features"][0]["geometry"]["coordinates"][0]
+    assert all(a[0] == b[0] or a[1] == b[1] for a, b in zip(ring, ring[1:]))
+    capsys.readouterr()
+    # a key that moves the iterates still refuses the folder
+    assert main([*argv, "--set", "freeform.start=0.4"]) == 2
+    assert "choose another --out" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("override, key", [

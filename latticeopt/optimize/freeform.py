@@ -193,7 +193,7 @@ def optimize_density(design, phantoms: list, mesh_settings, physics, cfg, param,
     history = []
     if state_path.exists():
         state = json.loads(state_path.read_text())
-        if state.get("identity") != identity:
+        if not same_run(state.get("identity"), identity):
             raise ParameterError("out", "an output folder of this same study (its settings differ from "
                                  "the stored state.json; choose another --out)", str(out))
         x, stage, done = np.asarray(state["x"], dtype=float), int(state["stage"]), int(state["iterations"])
@@ -322,11 +322,27 @@ def optimize_density(design, phantoms: list, mesh_settings, physics, cfg, param,
     return np.asarray(x), history, rho, ev
 
 
+#: Keys that only shape the outline written at the end, never an iterate: a finished run re-run with other values
+#: writes its outputs again instead of refusing the folder.
+OUTLINE_KEYS = ("threshold", "smooth_mm")
+
+
 def run_identity(design, phantoms: list, mesh_settings, physics, cfg) -> dict:
     """What a run folder's ``state.json`` must match to be resumed (and ``final.json`` to be reused).
 
-    Probe keys at their defaults are left out, so a run begun before they existed still resumes."""
-    config = {k: val for k, val in asdict(cfg).items() if k not in PROBE_DEFAULTS or val != PROBE_DEFAULTS[k]}
+    Probe keys at their defaults are left out, so a run begun before they existed still resumes; so are the
+    outline keys (:data:`OUTLINE_KEYS`), compared by :func:`same_run` on neither side."""
+    config = {k: val for k, val in asdict(cfg).items()
+              if k not in OUTLINE_KEYS and (k not in PROBE_DEFAULTS or val != PROBE_DEFAULTS[k])}
     return json.loads(json.dumps({
         "config": config, "design": design.as_dict(), "mesh": mesh_settings.as_dict(),
         "physics": physics.as_dict(), "phantoms": [[t.as_dict() for t in p] for p in phantoms]}))
+
+
+def same_run(stored: dict | None, identity: dict) -> bool:
+    """Whether a stored identity (``state.json``, ``final.json``, ``references.json``) is ``identity``'s run,
+    ignoring :data:`OUTLINE_KEYS` (a folder written before they left the identity still holds them)."""
+    if not isinstance(stored, dict):
+        return False
+    config = {k: val for k, val in stored.get("config", {}).items() if k not in OUTLINE_KEYS}
+    return {**stored, "config": config} == identity

@@ -66,13 +66,14 @@ def describe_front(study, out: Path) -> list[str]:
 
 
 def _finished(study, cfg, folder: Path) -> dict | None:
-    from .freeform import run_identity
+    from .freeform import run_identity, same_run
 
     path = folder / "final.json"
     if not (path.is_file() and (folder / "report.txt").is_file()):
         return None
     final = json.loads(path.read_text())
-    same = final.get("identity") == run_identity(study.design, list(study.phantoms), study.mesh, study.physics, cfg)
+    identity = run_identity(study.design, list(study.phantoms), study.mesh, study.physics, cfg)
+    same = same_run(final.get("identity"), identity)
     return final if same and "uniformity" in final else None
 
 
@@ -126,14 +127,14 @@ def _references(study, out: Path, progress) -> list[dict]:
     """Score :data:`REFERENCES` on the study's density model (resumable through ``references.json``)."""
     from ..density import DensityModel
     from ..density.field import density_of_design
-    from .freeform import _write_json, run_identity
+    from .freeform import _write_json, run_identity, same_run
     from .probes import ProbeGrid
 
     cfg = replace(study.config, front=(), min_uniformity=None, probes=True)
     identity = run_identity(study.design, list(study.phantoms), study.mesh, study.physics, cfg)
     path = out / "references.json"
     stored = json.loads(path.read_text()) if path.is_file() else {"identity": identity, "points": {}}
-    if stored.get("identity") != identity:
+    if not same_run(stored.get("identity"), identity):
         raise ParameterError("out", "a front folder of this same study (references.json holds another study's "
                              "settings; choose another --out)", str(out))
     model = probes = None
