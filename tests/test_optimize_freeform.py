@@ -114,6 +114,42 @@ def test_freeform_run_resumes_after_a_crash_and_writes_a_castable_layout(tmp_pat
     assert "choose another --out" in capsys.readouterr().err
 
 
+class ParkedOptimizer:
+    """An nlopt.opt stand-in that asks for the start twice and then once more for the same point, as MMA does
+    when parked on its bounds."""
+
+    def __init__(self, algorithm, n):
+        self.f = None
+
+    def __getattr__(self, name):  # bounds, constraints, tolerances: accepted and ignored
+        return lambda *a, **k: None
+
+    def set_min_objective(self, f):
+        self.f = f
+
+    def optimize(self, x):
+        for _ in range(3):
+            self.f(np.asarray(x, dtype=float), np.empty(0))
+        return x
+
+
+def test_a_repeated_point_is_counted_but_not_timed(tmp_path, monkeypatch, capsys):
+    import nlopt
+
+    monkeypatch.chdir(__import__("pathlib").Path(__file__).resolve().parents[1])
+    monkeypatch.setattr(nlopt, "opt", ParkedOptimizer)
+    out = tmp_path / "run"
+    assert main(["optimize", "studies/optimize_freeform.toml", "--out", str(out), *SMALL,
+                 "--set", "freeform.betas=[1]", "--set", "freeform.iterations_per_beta=3"]) == 0
+    history = [json.loads(x) for x in (out / "history.jsonl").read_text().splitlines()]
+    assert [h["repeat"] for h in history] == [False, True, True]
+    assert history[0]["seconds"] > 0 and history[0]["newton_steps"] > 0
+    assert all(h["seconds"] == 0 and h["newton_steps"] == 0 for h in history[1:])
+    assert history[1]["v_rel"] == history[0]["v_rel"]
+    assert "3 evaluations (2 repeats of the point before, not solved again)" in (out / "report.txt").read_text()
+    assert "(repeat of the previous point)" in capsys.readouterr().out
+
+
 @pytest.mark.parametrize("override, key", [
     ("freeform.symmetry='c2'", "freeform.symmetry"),
     ("freeform.cells=2", "freeform.cells"),

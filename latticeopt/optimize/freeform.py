@@ -247,14 +247,21 @@ def optimize_density(design, phantoms: list, mesh_settings, physics, cfg, param,
         count = {"n": done if k == stage else 0}
 
         def objective(xv, grad, beta=beta, k=k, count=count):
+            # nlopt asks again for the point it is parked on: count the call (its maxeval and the resume point
+            # count it) but mark it, so the history does not read as work done
+            repeat = (xv.tobytes(), beta) in cache
             rho, ev, secs, pe = evaluate(xv, beta)
+            secs = 0.0 if repeat else secs
             if grad.size:
                 grad[:] = -ff.gradient(xv, beta, ev.dv_rel_ddensity)
             count["n"] += 1
             rec = {"stage": k, "beta": beta, "iteration": count["n"], "v_rel": ev.v_rel,
                    "hydrogel_fraction": float(rho.mean()), "stretch": ev.stretch, "force_N": ev.force_N,
                    "grey": float(np.mean((rho > 0.05) & (rho < 0.95))), "seconds": secs,
-                   "newton_steps": sum(p.newton_steps for p in ev.presses), **(pe.record() if pe else {})}
+                   "newton_steps": 0 if repeat else sum(p.newton_steps for p in ev.presses),
+                   "repeat": repeat, **(pe.record() if pe else {})}
+            if repeat and pe:
+                rec["probe_seconds"] = 0.0
             if cfg.max_isolation is not None:
                 rec["isolation"] = isolation(xv, beta)[0]
             history.append(rec)
@@ -264,7 +271,8 @@ def optimize_density(design, phantoms: list, mesh_settings, physics, cfg, param,
             if progress:
                 progress(f"[stage {k + 1}/{len(cfg.betas)} beta {beta:g} it {count['n']:3d}] V_rel {ev.v_rel:.5f}  "
                          f"gel {rec['hydrogel_fraction']:.3f}  stretch {ev.stretch:.3f}  grey {rec['grey']:.2f}  "
-                         + (f"uniformity {pe.uniformity:.4f}  " if pe else "") + f"{secs:.1f} s"
+                         + (f"uniformity {pe.uniformity:.4f}  " if pe else "")
+                         + ("(repeat of the previous point)" if repeat else f"{secs:.1f} s")
                          + (f"  isolation {rec['isolation']:.3g}" if "isolation" in rec else ""))
             return -ev.v_rel
 

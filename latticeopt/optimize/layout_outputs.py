@@ -77,7 +77,10 @@ def write_outputs(design, rho: np.ndarray, cfg, out: Path, history: list, geomet
         fig.savefig(out / "convergence.png", dpi=100)
         plt.close(fig)
         files["convergence"] = str(out / "convergence.png")
-    lines = [*extra_lines, f"{len(history)} evaluations, {cfg.cells} x {cfg.cells} cells, symmetry {cfg.symmetry}",
+    repeats = sum(bool(h.get("repeat")) for h in history)
+    counted = f"{len(history)} evaluations" + (f" ({repeats} repeats of the point before, not solved again)"
+                                                if repeats else "")
+    lines = [*extra_lines, f"{counted}, {cfg.cells} x {cfg.cells} cells, symmetry {cfg.symmetry}",
              f"final density: gel fraction {rho.mean():.4f}, grey cells {np.mean((rho > 0.05) & (rho < 0.95)):.3f}"]
     if history:
         last = history[-1]
