@@ -64,7 +64,7 @@ def test_indent_takes_physics_keys(capsys):
 
 
 def test_sweep_physics_goes_into_the_study_table_as_values(capsys, tmp_path):
-    from latticeopt.cli._common import physics_values
+    from latticeopt.cli._physics import physics_values
     from latticeopt.study.config import load_study
 
     class Args:

@@ -59,7 +59,7 @@ def test_each_entry_names_a_bad_value_its_own_way():
         EvalSettings(physics_items=(("sigma", 1),))
     with pytest.raises(ParameterError, match=r"^coarse_physics\.mechanics_rtol: "):
         MultilevelSettings(coarse_physics={"mechanics_rtol": 2})
-    from latticeopt.cli._common import physics_settings
+    from latticeopt.cli._physics import physics_settings
 
     with pytest.raises(ParameterError, match=r"^--physics indenter: "):
         physics_settings(argparse.Namespace(physics=["indenter=cone"]))

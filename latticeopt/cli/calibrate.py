@@ -8,16 +8,8 @@ import sys
 from pathlib import Path
 
 from ..errors import ParameterError
-from ._common import (
-    add_mesh_args,
-    add_physics_arg,
-    check_mesh_args,
-    check_output_path,
-    emit_json,
-    mesh_settings_from_args,
-    physics_settings,
-    physics_values,
-)
+from ._common import add_mesh_args, check_mesh_args, check_output_path, emit_json, mesh_settings_from_args
+from ._physics import add_physics_arg, physics_settings, physics_values
 
 #: What ``calibrate`` writes into ``--out``.
 CALIBRATION_FILES = ("calibration.json", "calibration.png")

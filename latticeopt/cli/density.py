@@ -13,9 +13,9 @@ from ._common import (
     check_output_path,
     design_from_args,
     emit_json,
-    key_value_options,
     mesh_settings_from_args,
 )
+from ._physics import key_value_options
 
 
 def _interpolation(args):

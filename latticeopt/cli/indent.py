@@ -7,7 +7,6 @@ import time
 from ._common import (
     add_design_args,
     add_mesh_args,
-    add_physics_arg,
     add_touch_args,
     check_mesh_args,
     check_output_path,
@@ -16,11 +15,10 @@ from ._common import (
     emit_json,
     mesh_from_args,
     mesh_settings_from_args,
-    physics_settings,
-    physics_values,
     touches_from_args,
     touches_named_by_flag,
 )
+from ._physics import add_physics_arg, physics_settings, physics_values
 
 
 def register(sub) -> None:

@@ -5,14 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ._common import (
-    add_physics_arg,
-    check_parallel_args,
-    check_study_file,
-    check_study_outputs,
-    physics_values,
-    study_overrides,
-)
+from ._common import check_parallel_args, check_study_file, check_study_outputs, study_overrides
+from ._physics import add_physics_arg, physics_values
 
 
 def register(sub) -> None:

@@ -6,7 +6,8 @@ import argparse
 import math
 import sys
 
-from ._common import add_physics_arg, check_study_file, check_study_outputs, emit_json, physics_values
+from ._common import check_study_file, check_study_outputs, emit_json
+from ._physics import add_physics_arg, physics_values
 
 
 def register(sub) -> None:

@@ -9,18 +9,17 @@ from pathlib import Path
 from ._common import (
     add_design_args,
     add_mesh_args,
-    add_physics_arg,
     add_touch_args,
     check_mesh_args,
     check_touch_count,
     design_from_args,
     emit_json,
     mesh_settings_from_args,
-    physics_settings,
     sigma_help,
     touches_from_args,
     touches_named_by_flag,
 )
+from ._physics import add_physics_arg, physics_settings
 
 
 def register(sub) -> None:
