@@ -544,3 +544,8 @@ def test_a_grid_of_layout_files_says_which_hash_is_which_file(tmp_path):
     for design, path in zip(study.designs, files):
         assert f"layout {design.content_hash()[:8]} = {path}" in report
     assert study.designs[0].content_hash() != study.designs[1].content_hash() and res.failed == 0
+    assert (study.out_dir / "layouts.png").is_file()  # the outlines beside their means: which hash looks how
+    (tmp_path / "plain").mkdir()
+    plain = _study(tmp_path / "plain", n1=1, n2=1)
+    run_sweep(plain, fake_evaluate, progress=False)
+    assert not (plain.out_dir / "layouts.png").exists()  # a grid over widths has no layout files to draw

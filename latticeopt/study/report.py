@@ -261,6 +261,7 @@ def write_tables_and_figures(study: Study, result_rows: Sequence[dict], summary:
     """``results.csv``, ``summary.csv``, the V_rel line figure and (two-field grids) the heat map of a grid
     study whose rows and per-design summary an estimator has already computed; returns output name -> path."""
     from . import plots  # matplotlib only when figures are drawn
+    from .layout_plot import plot_layouts
 
     files = {"results": write_csv(out / "results.csv", result_rows),
              "summary": write_csv(out / "summary.csv", summary),
@@ -268,6 +269,9 @@ def write_tables_and_figures(study: Study, result_rows: Sequence[dict], summary:
     heat = plots.plot_heatmap(study, summary, out / "vrel_heatmap.png")
     if heat is not None:
         files["heatmap"] = heat
+    drawn = plot_layouts(study, summary, out / "layouts.png")
+    if drawn is not None:
+        files["layouts_plot"] = drawn
     return files
 
 
@@ -292,6 +296,7 @@ def write_outputs(study: Study, evaluations: Sequence[Evaluation], out: Path) ->
         The text report (also in ``report.txt``), for the CLI to print.
     """
     from . import plots  # matplotlib only when figures are drawn
+    from .layout_plot import plot_layouts
 
     out = Path(out)
     files = {"results": write_csv(out / "results.csv", results_rows(study, evaluations))}
@@ -317,6 +322,9 @@ def write_outputs(study: Study, evaluations: Sequence[Evaluation], out: Path) ->
         heat = plots.plot_heatmap(study, summary, out / "vrel_heatmap.png")
         if heat is not None:
             files["heatmap"] = heat
+        drawn = plot_layouts(study, summary, out / "layouts.png")
+        if drawn is not None:
+            files["layouts_plot"] = drawn
         best = best_design(study, evaluations)
         if best is None:
             lines.append("no design compared: no phantom succeeded for every design that solved any")
