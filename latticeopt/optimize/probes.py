@@ -3,7 +3,8 @@
 A density study (``kind = "freeform"`` or ``"graded"``) with ``probes = true``, a ``min_uniformity`` or a
 ``front`` also presses the probe grid of :meth:`~latticeopt.optimize.objectives.Objective.probes` (one touch of
 ``probe_radius_mm`` pressed ``probe_depth_mm`` at the centre of every cell of a ``probe_grid x probe_grid``
-partition of the sensor) on the current layout, every evaluation. Its uniformity is the objective table's
+partition of the sensor, built by :class:`latticeopt.study.phantoms.ProbePresses`, which a ``kind = "probes"``
+sweep also presses) on the current layout, every evaluation. Its uniformity is the objective table's
 ``uniformity`` term (``1 - CV`` of V_rel over the probes) with that term's gradient from the probes' adjoint
 gradients; the worst-to-best ratio (smallest over largest probe V_rel) is reported beside it. ``min_uniformity``
 makes ``uniformity >= min_uniformity`` a constraint of the optimization (an epsilon constraint:
