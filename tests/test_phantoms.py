@@ -167,7 +167,8 @@ def test_probe_presses_defaults_and_errors():
             ProbePresses(**kwargs)
         assert str(kwargs[name]) in str(info.value)
     assert ProbePresses(4, 12.5).generate(L)  # exactly half a cell fits
-    with pytest.raises(ParameterError, match=r"^radius_mm: expected <= 12.5 mm .* 4 x 4 grid.*got 12.6"):
+    with pytest.raises(ParameterError, match=r"^radius_mm: expected radius_mm <= L / \(2 grid\) = 12.5 mm .* 4 x 4 "
+                       "grid.*got 12.6"):
         ProbePresses(4, 12.6).generate(L)
     with pytest.raises(ParameterError, match="^probe_radius_mm: .*got 12.6"):
         Objective(weights=(("uniformity", 1.0),), probe_grid=4, probe_radius_mm=12.6).probes(L)

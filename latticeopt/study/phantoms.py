@@ -281,8 +281,8 @@ class ProbePresses:
         """
         n, r = self.grid, self.radius_mm
         if r > self.max_radius_mm(size_mm):
-            raise ParameterError("radius_mm", f"<= {self.max_radius_mm(size_mm):g} mm so every probe of the "
-                                 f"{n} x {n} grid lies in its own cell", r)
+            raise ParameterError("radius_mm", f"radius_mm <= L / (2 grid) = {self.max_radius_mm(size_mm):g} mm "
+                                 f"(L = {size_mm:g} mm) so every probe of the {n} x {n} grid lies in its own cell", r)
         c = (np.arange(n) + 0.5) * size_mm / n
         return tuple(Phantom((Touch(x_mm=float(c[i % n]), y_mm=float(c[i // n]), radius_mm=r,
                                     depth_mm=self.depth_mm),), index=i, kind="press") for i in range(n * n))
