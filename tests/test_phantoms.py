@@ -17,6 +17,8 @@ from latticeopt.study.phantoms import (
     press_series,
     random_phantom,
     random_phantoms,
+    uniformity,
+    worst_to_best,
 )
 from latticeopt.touches import Touch, validate_touches
 
@@ -174,3 +176,24 @@ def test_probe_presses_defaults_and_errors():
         Objective(weights=(("uniformity", 1.0),), probe_grid=4, probe_radius_mm=12.6).probes(L)
     with pytest.raises(ParameterError, match="^probe_grid: .*2 to 10"):
         Objective(probe_grid=11)
+
+
+def test_uniformity_and_worst_to_best_are_the_optimizers():
+    from latticeopt.optimize.objectives import TERMS, Objective
+
+    v = np.random.default_rng(3).uniform(0.02, 0.05, 49)
+    assert uniformity(v) == pytest.approx(1 - statistics_pstdev(v) / float(np.mean(v)), rel=1e-12)
+    assert worst_to_best(v) == pytest.approx(min(v) / max(v), rel=1e-15)
+    none = np.zeros(0)
+    assert uniformity(v) == TERMS["uniformity"].value(Objective(), none, v, none)  # one definition, same bits
+    failed = v.copy()
+    failed[5] = np.nan
+    assert math.isnan(uniformity(failed)) and math.isnan(worst_to_best(failed))  # never over a subset
+    assert math.isnan(uniformity([])) and math.isnan(uniformity([-0.01, 0.01]))
+    assert uniformity([0.03] * 4) == 1.0
+
+
+def statistics_pstdev(values) -> float:
+    """Population standard deviation by its definition (not numpy's)."""
+    m = sum(values) / len(values)
+    return math.sqrt(sum((x - m) ** 2 for x in values) / len(values))

@@ -49,7 +49,7 @@ import numpy as np
 
 from .. import _validate as v
 from ..errors import ParameterError
-from ..study.phantoms import Phantom, ProbePresses
+from ..study.phantoms import Phantom, ProbePresses, uniformity
 
 __all__ = ["PROBE_TERMS", "TERMS", "Objective", "ObjectiveValue", "Term"]
 _BOOTSTRAP_SEED = 20250101
@@ -77,8 +77,7 @@ def _robust_grad(o, r, p, gr, gp):
 
 
 def _uniformity(o, r, p, c):
-    m = float(np.mean(p)) if p.size else math.nan
-    return 1.0 - float(np.std(p)) / m if m > 0 else math.nan
+    return uniformity(p)
 
 
 def _uniformity_grad(o, r, p, gr, gp):

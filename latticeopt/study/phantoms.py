@@ -34,7 +34,7 @@ from ..errors import ParameterError
 from ..touches import Touch
 
 __all__ = ["MAX_TOUCHES", "PROBE_GRID", "Comparison", "Phantom", "PressSeries", "ProbePresses", "RandomPhantoms",
-           "phantom_rng", "press_series", "random_phantom", "random_phantoms"]
+           "phantom_rng", "press_series", "random_phantom", "random_phantoms", "uniformity", "worst_to_best"]
 
 #: Most touches a random phantom may have (the paper uses 1, 2 and 3).
 MAX_TOUCHES = 5
@@ -286,3 +286,19 @@ class ProbePresses:
         c = (np.arange(n) + 0.5) * size_mm / n
         return tuple(Phantom((Touch(x_mm=float(c[i % n]), y_mm=float(c[i // n]), radius_mm=r,
                                     depth_mm=self.depth_mm),), index=i, kind="press") for i in range(n * n))
+
+
+def uniformity(v_rel: Sequence[float]) -> float:
+    """``1 - std / mean`` of the probes' V_rel, the population std (``ddof = 0``): 1 when every probe reads the
+    same; below 0 when the spread exceeds the mean. NaN for no values, a mean <= 0 or a NaN among them (a failed
+    probe): it is a statistic of the whole grid, never of a subset."""
+    p = np.asarray(v_rel, dtype=float).ravel()
+    m = float(np.mean(p)) if p.size else math.nan
+    return 1.0 - float(np.std(p)) / m if m > 0 else math.nan
+
+
+def worst_to_best(v_rel: Sequence[float]) -> float:
+    """Smallest over largest probe V_rel (NaN for no values, a largest <= 0 or a NaN among them)."""
+    p = np.asarray(v_rel, dtype=float).ravel()
+    best = float(p.max()) if p.size else math.nan
+    return float(p.min()) / best if best > 0 else math.nan
