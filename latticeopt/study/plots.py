@@ -8,6 +8,7 @@ that mesh is converged (at least the default mesh for every design), and how man
 from __future__ import annotations
 
 import math
+import textwrap
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -189,10 +190,10 @@ def plot_probes(study: Study, maps: Sequence[np.ndarray], summary: Sequence[dict
     from matplotlib.figure import Figure
 
     grid, L = study.phantom_set, study.designs[0].size_mm
-    cols = min(len(maps), 4)
+    cols = len(maps) if len(maps) <= 3 else min(math.ceil(math.sqrt(len(maps))), 4)
     rows = math.ceil(len(maps) / cols)
     fig = Figure(figsize=(max(6.4, 2.4 * cols + 1.2), 2.5 * rows + 1.3), layout="constrained")
-    axes = fig.subplots(rows, cols, squeeze=False, sharex=True, sharey=True)
+    axes = fig.subplots(rows, cols, squeeze=False)
     finite = np.concatenate([m[np.isfinite(m)] for m in maps])
     lo, hi = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 1.0)
     cmap = matplotlib.colormaps["viridis"].with_extremes(bad="0.85")
@@ -204,12 +205,13 @@ def plot_probes(study: Study, maps: Sequence[np.ndarray], summary: Sequence[dict
         for r, c in zip(*np.nonzero(~np.isfinite(vals))):
             ax.plot(centres[c], centres[r], marker="x", color="crimson", markersize=6)
         u = s["uniformity"]
-        ax.set_title(wrap_title(name, 30) + "\n" + (f"uniformity {u:.3f}" if math.isfinite(u) else
-                                                   f"uniformity n/a, {s['failed']} failed"), fontsize=7.5)
+        # a file name is one long word: wrap at its spaces only (", " between grid values), never inside it
+        ax.set_title(textwrap.fill(name, 36, break_long_words=False) + "\n" + (
+            f"uniformity {u:.3f}" if math.isfinite(u) else f"uniformity n/a, {s['failed']} failed"), fontsize=7.5)
         ax.tick_params(labelsize=6.5)
         if k % cols == 0:
             ax.set_ylabel("y (mm)", fontsize=7)
-        if k >= len(maps) - cols:
+        if k + cols >= len(maps):  # nothing below it
             ax.set_xlabel("x (mm)", fontsize=7)
     for ax in axes.flat[len(maps):]:
         ax.set_visible(False)
