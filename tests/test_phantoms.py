@@ -159,9 +159,16 @@ def test_probe_presses_defaults_and_errors():
     from latticeopt.optimize.probes import ProbeKeys
 
     assert (ProbePresses().grid, ProbePresses().radius_mm, ProbePresses().depth_mm) == (7, 6.25, 3.0)
-    # the optimizers keep their own defaults
+    # the optimizers keep their own defaults, in the API and in a study's [optimize.uniformity] alike
+    from latticeopt.optimize.load import optimization_from_dict
+
     o = Objective()
     assert (o.probe_grid, o.probe_radius_mm, o.probe_depth_mm) == (3, 7.5, 3.0)
+    for uni, expected in (({}, (3, 7.5, 3.0)), ({"depth_mm": 2.0}, (3, 7.5, 2.0)), ({"grid": 4}, (4, 7.5, 3.0))):
+        raw = {"phantoms": {"counts": {"1": 1}}, "optimize": {"variables": {"width_mm": [1, 5]},
+                                                             "objective": "uniformity", "uniformity": uni}}
+        o = optimization_from_dict(raw).config.objective
+        assert (o.probe_grid, o.probe_radius_mm, o.probe_depth_mm) == expected
     assert (ProbeKeys.probe_grid, ProbeKeys.probe_radius_mm, ProbeKeys.probe_depth_mm) == (7, 6.25, 3.0)
     for kwargs, name in ((dict(grid=1), "grid"), (dict(grid=11), "grid"), (dict(grid=2.0), "grid"),
                          (dict(radius_mm=0), "radius_mm"), (dict(depth_mm=-1.0), "depth_mm")):
