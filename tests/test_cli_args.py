@@ -360,7 +360,8 @@ def test_help_names_the_files_written_without_being_named():
 
 
 @pytest.mark.parametrize("study, extra", [("sensitivity_press.toml", []),
-                                          ("quick.toml", ["phantoms.counts={1=2}"])])
+                                          ("quick.toml", ["phantoms.counts={1=2}"]),
+                                          ("uniformity_layouts.toml", ["probes.grid=2", "probes.radius_mm=10"])])
 def test_sweep_help_names_every_file_a_sweep_writes(study, extra, tmp_path):
     from pathlib import Path
 

@@ -1,4 +1,4 @@
-"""Random phantoms and press series: ranges, placement, non-overlap, reproducibility, stream contract."""
+"""Random phantoms, press series and probe grids: ranges, placement, non-overlap, reproducibility, stream contract."""
 
 from __future__ import annotations
 
@@ -10,7 +10,16 @@ from scipy import stats
 
 from latticeopt.design import LatticeDesign
 from latticeopt.errors import ParameterError
-from latticeopt.study.phantoms import Phantom, phantom_rng, press_series, random_phantom, random_phantoms
+from latticeopt.study.phantoms import (
+    Phantom,
+    ProbePresses,
+    phantom_rng,
+    press_series,
+    random_phantom,
+    random_phantoms,
+    uniformity,
+    worst_to_best,
+)
 from latticeopt.touches import Touch, validate_touches
 
 L = 100.0
@@ -115,3 +124,83 @@ def test_bad_arguments_named(kwargs, name):
 def test_impossible_packing_reported():
     with pytest.raises(ParameterError, match="non-overlapping"):
         random_phantom(40.0, 5, 0, seed=0, radius_range_mm=(9.0, 10.0))
+
+
+def _independent_probes(n: int, L: float, r: float, d: float) -> list[Phantom]:
+    """The probe grid as the optimizers built it before it had one definition: probe i at the centre of cell
+    (i % n, i // n), in plain Python floats."""
+    return [Phantom((Touch(x_mm=(i % n + 0.5) * L / n, y_mm=(i // n + 0.5) * L / n, radius_mm=r, depth_mm=d),),
+                    index=i, kind="press") for i in range(n * n)]
+
+
+@pytest.mark.parametrize("n, L, r, d", [(7, 100.0, 6.25, 3.0), (3, 100.0, 7.5, 3.0), (4, 100.0, 7.5, 2.5),
+                                        (10, 100.0, 5.0, 1.0), (3, 80.0, 12.0, 4.0), (2, 100.0, 25.0, 3.0)])
+def test_probe_presses_are_the_cell_centres_in_order(n, L, r, d):
+    from latticeopt.optimize.graded import GradedConfig
+    from latticeopt.optimize.objectives import Objective
+    from latticeopt.optimize.probes import ProbeGrid
+
+    probes = ProbePresses(n, r, d).generate(L)
+    expected = _independent_probes(n, L, r, d)
+    assert [p.touches for p in probes] == [p.touches for p in expected]  # exact floats, not approx
+    assert [p.key for p in probes] == [p.key for p in expected]  # so the same content hashes, the same store rows
+    assert [p.as_dict() for p in probes] == [p.as_dict() for p in expected]
+    assert [ProbePresses(n, r, d).cell(p.index) for p in probes] == [(i % n, i // n) for i in range(n * n)]
+    # the optimizers' probe grid and the density studies' are this one
+    objective = Objective(weights=(("uniformity", 1.0),), probe_grid=n, probe_radius_mm=r, probe_depth_mm=d)
+    assert [p.key for p in objective.probes(L)] == [p.key for p in expected]
+    design = LatticeDesign(size_mm=L, thickness_mm=1.0)
+    grid = ProbeGrid(design, GradedConfig(probes=True, probe_grid=n, probe_radius_mm=r, probe_depth_mm=d))
+    assert [tuple(t) for t in grid.touches] == [p.touches for p in expected]
+
+
+def test_probe_presses_defaults_and_errors():
+    from latticeopt.optimize.objectives import Objective
+    from latticeopt.optimize.probes import ProbeKeys
+
+    assert (ProbePresses().grid, ProbePresses().radius_mm, ProbePresses().depth_mm) == (7, 6.25, 3.0)
+    # the optimizers keep their own defaults, in the API and in a study's [optimize.uniformity] alike
+    from latticeopt.optimize.load import optimization_from_dict
+
+    o = Objective()
+    assert (o.probe_grid, o.probe_radius_mm, o.probe_depth_mm) == (3, 7.5, 3.0)
+    for uni, expected in (({}, (3, 7.5, 3.0)), ({"depth_mm": 2.0}, (3, 7.5, 2.0)), ({"grid": 4}, (4, 7.5, 3.0))):
+        raw = {"phantoms": {"counts": {"1": 1}}, "optimize": {"variables": {"width_mm": [1, 5]},
+                                                             "objective": "uniformity", "uniformity": uni}}
+        o = optimization_from_dict(raw).config.objective
+        assert (o.probe_grid, o.probe_radius_mm, o.probe_depth_mm) == expected
+    assert (ProbeKeys.probe_grid, ProbeKeys.probe_radius_mm, ProbeKeys.probe_depth_mm) == (7, 6.25, 3.0)
+    for kwargs, name in ((dict(grid=1), "grid"), (dict(grid=11), "grid"), (dict(grid=2.0), "grid"),
+                         (dict(radius_mm=0), "radius_mm"), (dict(depth_mm=-1.0), "depth_mm")):
+        with pytest.raises(ParameterError, match=f"^{name}: ") as info:
+            ProbePresses(**kwargs)
+        assert str(kwargs[name]) in str(info.value)
+    assert ProbePresses(4, 12.5).generate(L)  # exactly half a cell fits
+    with pytest.raises(ParameterError, match=r"^radius_mm: expected radius_mm <= L / \(2 grid\) = 12.5 mm .* 4 x 4 "
+                       "grid.*got 12.6"):
+        ProbePresses(4, 12.6).generate(L)
+    with pytest.raises(ParameterError, match="^probe_radius_mm: .*got 12.6"):
+        Objective(weights=(("uniformity", 1.0),), probe_grid=4, probe_radius_mm=12.6).probes(L)
+    with pytest.raises(ParameterError, match="^probe_grid: .*2 to 10"):
+        Objective(probe_grid=11)
+
+
+def test_uniformity_and_worst_to_best_are_the_optimizers():
+    from latticeopt.optimize.objectives import TERMS, Objective
+
+    v = np.random.default_rng(3).uniform(0.02, 0.05, 49)
+    assert uniformity(v) == pytest.approx(1 - statistics_pstdev(v) / float(np.mean(v)), rel=1e-12)
+    assert worst_to_best(v) == pytest.approx(min(v) / max(v), rel=1e-15)
+    none = np.zeros(0)
+    assert uniformity(v) == TERMS["uniformity"].value(Objective(), none, v, none)  # one definition, same bits
+    failed = v.copy()
+    failed[5] = np.nan
+    assert math.isnan(uniformity(failed)) and math.isnan(worst_to_best(failed))  # never over a subset
+    assert math.isnan(uniformity([])) and math.isnan(uniformity([-0.01, 0.01]))
+    assert uniformity([0.03] * 4) == 1.0
+
+
+def statistics_pstdev(values) -> float:
+    """Population standard deviation by its definition (not numpy's)."""
+    m = sum(values) / len(values)
+    return math.sqrt(sum((x - m) ** 2 for x in values) / len(values))

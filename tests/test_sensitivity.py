@@ -54,6 +54,13 @@ def test_bad_values_are_caught_before_any_run(tmp_path):
     assert not (tmp_path / "o").exists()
 
 
+def test_a_probes_study_is_refused_naming_its_kind(tmp_path):
+    probes = STUDY.parent / "uniformity_layouts.toml"
+    with pytest.raises(ParameterError, match=r"layouts.toml: kind: expected 'grid' or 'press'.*got 'probes'"):
+        load_variants(probes, [parse_vary("rim=channel")], [f"out={(tmp_path / 'o').as_posix()}"])
+    assert not (tmp_path / "o").exists()
+
+
 def failing_with_soft_gel(design, phantom, settings) -> dict:
     """TEST DOUBLE: every press fails when the gel is softer than 3 kPa (a ModelFailure, as the mechanics would)."""
     from latticeopt.errors import ConvergenceError

@@ -13,10 +13,14 @@ def register(sub) -> None:
         "sweep", help="run a study (grid of designs x phantoms) into a resumable results store",
         description="Run every design x phantom of a study TOML file that its results store does not hold "
                     "yet, in parallel, writing each result the moment it finishes. Re-run the same command "
-                    "after an interruption to resume. Writes into the study's out folder (or --out): "
+                    "after an interruption to resume. Kinds: grid (random phantoms, [phantoms]), press (one indenter "
+                    "ever deeper, [press]) and probes (the probe grid, [probes]: one press at every cell centre of "
+                    "an n x n grid, each design scored by its uniformity 1 - std/mean of V_rel). "
+                    "Writes into the study's out folder (or --out): "
                     "results.sqlite (the store), study.json, latticeopt.lock (held while it runs), results.csv and "
                     "report.txt; for a grid summary.csv, paired.csv (every design against the best), "
                     "vrel_lines.png and vrel_heatmap.png (two fields); for a press study press.csv and press.png; "
+                    "for a probes study summary.csv (uniformity, worst-to-best, weakest probe) and probes.png; "
                     "excluded.csv and error.log when phantoms fail. "
                     "Schema: docs/studies.md.")
     p.add_argument("study", metavar="STUDY.toml", help="study file (e.g. studies/quick.toml)")

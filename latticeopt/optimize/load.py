@@ -5,6 +5,7 @@ Errors name the file and dotted key (or ``--set key``), what was expected and wh
 
 from __future__ import annotations
 
+import dataclasses
 import numbers
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -13,6 +14,7 @@ from ..design import LatticeDesign
 from ..errors import ParameterError
 from ..study.config import read_study_table, study_from_dict
 from ..study.keynames import KeyNames
+from ..study.phantoms import ProbePresses
 from ..touches import validate_touches
 from .config import CONTINUOUS_FIELDS, Constraints, OptimizeConfig, Variable
 from .objectives import TERMS, Objective
@@ -25,7 +27,9 @@ _KEYS = ("algorithm", "local_algorithm", "objective", "quantile", "uniformity", 
          "ftol_rel", "initial_step", "starts", "seed", "variables")
 _VAR_KEYS = ("lower", "upper", "start")
 _CONSTRAINT_KEYS = ("min_channel_mm", "min_island_mm", "min_substrate_mm", "max_hydrogel_stretch")
-_UNIFORMITY_KEYS = ("grid", "radius_mm", "depth_mm")
+#: ``[optimize.uniformity]`` keys: the probe grid's (:class:`~latticeopt.study.phantoms.ProbePresses`), each the
+#: :class:`Objective` field ``probe_<key>`` whose default applies when it is left out.
+_UNIFORMITY_KEYS = tuple(f.name for f in dataclasses.fields(ProbePresses))
 #: ``[optimize.image]`` key -> :class:`Objective` field (the image_cc reconstructions).
 _IMAGE_KEYS = {"prior": "image_prior", "lambda": "image_lambda"}
 
@@ -72,12 +76,10 @@ def _objective(nm: KeyNames, tab: dict) -> Objective:
     uni = nm.known(tab.get("uniformity", {}), _UNIFORMITY_KEYS, "optimize.uniformity")
     img = nm.known(tab.get("image", {}), list(_IMAGE_KEYS), "optimize.image")
     kw = {"weights": tuple(weights.items()), "quantile": tab.get("quantile", 0.1),
-          "probe_grid": uni.get("grid", 3), "probe_radius_mm": uni.get("radius_mm", 7.5),
-          "probe_depth_mm": uni.get("depth_mm", 3.0), "bootstrap": tab.get("bootstrap", 1000),
+          **{f"probe_{k}": val for k, val in uni.items()}, "bootstrap": tab.get("bootstrap", 1000),
           **{_IMAGE_KEYS[k]: val for k, val in img.items()}}
-    keys = {"quantile": "optimize.quantile", "probe_grid": "optimize.uniformity.grid",
-            "bootstrap": "optimize.bootstrap",
-            "probe_radius_mm": "optimize.uniformity.radius_mm", "probe_depth_mm": "optimize.uniformity.depth_mm",
+    keys = {"quantile": "optimize.quantile", "bootstrap": "optimize.bootstrap",
+            **{f"probe_{k}": f"optimize.uniformity.{k}" for k in _UNIFORMITY_KEYS},
             **{field: f"optimize.image.{k}" for k, field in _IMAGE_KEYS.items()}}
     try:
         return Objective(**kw)

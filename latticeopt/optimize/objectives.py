@@ -49,8 +49,7 @@ import numpy as np
 
 from .. import _validate as v
 from ..errors import ParameterError
-from ..study.phantoms import Phantom
-from ..touches import Touch
+from ..study.phantoms import Phantom, ProbePresses, uniformity
 
 __all__ = ["PROBE_TERMS", "TERMS", "Objective", "ObjectiveValue", "Term"]
 _BOOTSTRAP_SEED = 20250101
@@ -78,8 +77,7 @@ def _robust_grad(o, r, p, gr, gp):
 
 
 def _uniformity(o, r, p, c):
-    m = float(np.mean(p)) if p.size else math.nan
-    return 1.0 - float(np.std(p)) / m if m > 0 else math.nan
+    return uniformity(p)
 
 
 def _uniformity_grad(o, r, p, gr, gp):
@@ -194,11 +192,12 @@ class Objective:
         object.__setattr__(self, "weights", tuple((k, w[k]) for k in TERMS if w.get(k, 0) > 0))
         object.__setattr__(self, "quantile", v.real("quantile", self.quantile, lo=0, hi=1, lo_open=True,
                                                     hi_open=True))
-        object.__setattr__(self, "probe_grid", v.integer("probe_grid", self.probe_grid, lo=2, hi=10))
-        object.__setattr__(self, "probe_radius_mm", v.real("probe_radius_mm", self.probe_radius_mm, lo=0,
-                                                           lo_open=True))
-        object.__setattr__(self, "probe_depth_mm", v.real("probe_depth_mm", self.probe_depth_mm, lo=0,
-                                                          lo_open=True))
+        try:  # the probe grid's schema is the sweep's: ProbePresses (grid, radius_mm, depth_mm)
+            grid = ProbePresses(self.probe_grid, self.probe_radius_mm, self.probe_depth_mm)
+        except ParameterError as exc:
+            raise ParameterError(f"probe_{exc.name}", exc.expected, exc.got) from None
+        for name in ("grid", "radius_mm", "depth_mm"):
+            object.__setattr__(self, f"probe_{name}", getattr(grid, name))
         object.__setattr__(self, "bootstrap", v.integer("bootstrap", self.bootstrap, lo=100))
         object.__setattr__(self, "image_prior", v.choice("image_prior", self.image_prior, PRIORS))
         object.__setattr__(self, "image_lambda", v.real("image_lambda", self.image_lambda, lo=0, lo_open=True,
@@ -221,19 +220,21 @@ class Objective:
         return " + ".join(parts)
 
     def probes(self, size_mm: float) -> tuple[Phantom, ...]:
-        """The probe grid on a ``size_mm`` sensor (empty unless ``uniformity`` or ``image_cc`` has a weight).
-
-        Touch ``i`` sits at the centre of cell ``(i % n, i // n)`` of the ``n x n`` partition; kind ``"press"``.
-        """
+        """The probe grid on a ``size_mm`` sensor (empty unless ``uniformity`` or ``image_cc`` has a weight):
+        :meth:`ProbePresses.generate <latticeopt.study.phantoms.ProbePresses.generate>` (touch ``i`` at the centre
+        of cell ``(i % n, i // n)`` of the ``n x n`` partition), named ``probe_radius_mm`` when a probe leaves
+        its cell."""
         if not self.needs_probes:
             return ()
-        n, r = self.probe_grid, self.probe_radius_mm
-        if r > size_mm / (2 * n):
-            raise ParameterError("probe_radius_mm", f"<= {size_mm / (2 * n):g} mm so every probe of the "
-                                 f"{n} x {n} grid lies in its own cell", r)
-        c = (np.arange(n) + 0.5) * size_mm / n
-        return tuple(Phantom((Touch(x_mm=float(c[i % n]), y_mm=float(c[i // n]), radius_mm=r,
-                                    depth_mm=self.probe_depth_mm),), index=i, kind="press") for i in range(n * n))
+        try:
+            return self.probe_presses.generate(size_mm)
+        except ParameterError as exc:
+            raise ParameterError(f"probe_{exc.name}", exc.expected, exc.got) from None
+
+    @property
+    def probe_presses(self) -> ProbePresses:
+        """The probe grid's settings as the sweep's phantom set (``kind = "probes"`` scores the same grid)."""
+        return ProbePresses(self.probe_grid, self.probe_radius_mm, self.probe_depth_mm)
 
     # -- evaluation --------------------------------------------------------------------------------------
     def _terms(self, random_v: np.ndarray, probe_v: np.ndarray, probe_cc: np.ndarray) -> dict:

@@ -3,7 +3,8 @@
 A density study (``kind = "freeform"`` or ``"graded"``) with ``probes = true``, a ``min_uniformity`` or a
 ``front`` also presses the probe grid of :meth:`~latticeopt.optimize.objectives.Objective.probes` (one touch of
 ``probe_radius_mm`` pressed ``probe_depth_mm`` at the centre of every cell of a ``probe_grid x probe_grid``
-partition of the sensor) on the current layout, every evaluation. Its uniformity is the objective table's
+partition of the sensor, built by :class:`latticeopt.study.phantoms.ProbePresses`, which a ``kind = "probes"``
+sweep also presses) on the current layout, every evaluation. Its uniformity is the objective table's
 ``uniformity`` term (``1 - CV`` of V_rel over the probes) with that term's gradient from the probes' adjoint
 gradients; the worst-to-best ratio (smallest over largest probe V_rel) is reported beside it. ``min_uniformity``
 makes ``uniformity >= min_uniformity`` a constraint of the optimization (an epsilon constraint:
@@ -21,7 +22,6 @@ solvers' tolerances: measured on a D4 layout (``docs/gradients.md``) and checked
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass, fields
 
@@ -29,6 +29,7 @@ import numpy as np
 
 from .. import _validate as v
 from ..errors import ParameterError
+from ..study.phantoms import worst_to_best
 from .objectives import TERMS, Objective
 
 #: The square's symmetries acting on ``(y, x)``-indexed square arrays (density cells and the probe grid alike):
@@ -195,14 +196,13 @@ class ProbeGrid:
         self._warm.update({k: p.displacement_mm for k, p in by.items()})
         values = np.array([by[r].v_rel for r in rep])
         none = np.zeros(0)
-        uniformity = TERMS["uniformity"].value(self.objective, none, values, none)
+        uniformity = TERMS["uniformity"].value(self.objective, none, values, none)  # phantoms.uniformity
         d_u = None
         if gradient:
             grads = np.stack([OPS[k](by[r].dv_rel) for r, k in zip(rep, op)])
             d_u = self.objective.gradient(none, values, np.zeros((0, *grads.shape[1:])), grads)
-        best = float(values.max())
         return ProbeEvaluation(v_rel=values, uniformity=uniformity, d_uniformity=d_u,
-                               worst_to_best=float(values.min()) / best if best > 0 else math.nan,
+                               worst_to_best=worst_to_best(values),
                                solved=len(solved), seconds=time.perf_counter() - t0,
                                newton_steps=sum(p.newton_steps for p in ev.presses))
 

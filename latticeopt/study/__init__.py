@@ -5,12 +5,12 @@ The physics core (:mod:`latticeopt.design`, :mod:`latticeopt.mesh`, :mod:`lattic
 
 - :mod:`.config`: study TOML files, validated into a frozen :class:`~.config.Study`, and the evaluation
   settings whose hash keys the store;
-- :mod:`.phantoms`: seeded random phantoms and press series;
-- :mod:`.sweep`: runs a study through its estimator (:mod:`.estimators`: plain, two-level, adaptive), which
+- :mod:`.phantoms`: seeded random phantoms, press series and the probe grid with its uniformity;
+- :mod:`.sweep`: runs a study through its estimator (:mod:`.estimators`: plain, two-level, adaptive, probes), which
   evaluates through :mod:`.engine` (resumable, in parallel on :mod:`latticeopt.execution`);
   :mod:`.walltime` estimates how long that takes;
 - :mod:`.store`: the SQLite results store and the output-folder lock;
-- :mod:`.report`: summaries, CSV files and plots of a finished sweep;
+- :mod:`.report`: summaries, CSV files and plots of a finished sweep (:mod:`.probe_report` for the probe grid);
 - :mod:`.objectives`: design scores for the optimizer;
 - :mod:`.calibrate` and :mod:`.sensitivity`: fitting physics parameters to measured presses, and re-running a
   study under changed inputs.

@@ -3,7 +3,9 @@ tables (:mod:`.report`) and the figures (:mod:`.plots`), which would otherwise i
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Sequence
+from pathlib import Path
 
 from .config import Study
 from .store import Evaluation
@@ -37,3 +39,25 @@ def _label(design, fields) -> str:
 
 def _fmt(design, fields) -> str:
     return _label(design, fields) or design.describe()
+
+
+def _names(study: Study) -> list[str]:
+    """Each design's name for a figure or a ranking: its grid values as :func:`_fmt` gives them, except that a layout
+    file is named by its file name rather than its content hash (by its path as written when two files share a
+    name; a layout fixed in ``[design]`` too)."""
+    grid = dict(study.grid)
+    files = [Path(str(val)).name for val in grid.get("layout", ())]
+    short = len(set(files)) == len(files)
+
+    def layout(val) -> str:
+        return Path(str(val)).name if short else str(val)
+
+    combos = list(itertools.product(*(values for _, values in study.grid)))
+    fixed = (study.table.get("design") or {}).get("layout")
+    out = []
+    for design, combo in zip(study.designs, combos):
+        parts = [layout(val) if f == "layout" else _label(design, [f]) for f, val in zip(study.grid_fields, combo)]
+        if not parts and isinstance(fixed, str):
+            parts = [Path(fixed).name]
+        out.append(", ".join(parts) or design.describe())
+    return out

@@ -1,4 +1,4 @@
-"""Parsers of a study file's tables (``[phantoms]``, ``[press]``, ``[design]`` / ``[grid]``) for
+"""Parsers of a study file's tables (``[phantoms]``, ``[press]``, ``[probes]``, ``[design]`` / ``[grid]``) for
 :func:`latticeopt.study.config.study_from_dict`; every problem becomes a :class:`ParameterError` naming the key."""
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from ..errors import ParameterError
 from ..mesh import MeshSettings
 from ..touches import validate_touches
 from .keynames import KeyNames as _Where
-from .phantoms import MAX_TOUCHES, Comparison, Phantom, PressSeries, RandomPhantoms
+from .phantoms import MAX_TOUCHES, Comparison, Phantom, PressSeries, ProbePresses, RandomPhantoms
 from .settings import AdaptiveSettings, MultilevelSettings
 
 
@@ -26,16 +26,21 @@ def _string(name: str, value: object) -> str:
 
 
 # -- tables ------------------------------------------------------------------------------------------------
-_TOP = {"name": "study name (default: file stem)", "description": "free text", "kind": "'grid' or 'press'",
+_TOP = {"name": "study name (default: file stem)", "description": "free text",
+        "kind": "'grid', 'press' or 'probes'",
         "model": "'module:function' evaluating one phantom", "out": "output folder", "jobs": "worker processes",
         "cache_dir": "mesh/reference cache folder", "design": "table of fixed design fields",
         "grid": "table: design field -> list of values", "phantoms": "table (kind = 'grid')",
-        "press": "table (kind = 'press')", "mesh": "table of mesh settings", "physics": "table of model settings",
+        "press": "table (kind = 'press')", "probes": "table (kind = 'probes')", "mesh": "table of mesh settings",
+        "physics": "table of model settings",
         "multilevel": "table: coarse mesh, pilot, se_factor (kind = 'grid')"}
 _ADAPTIVE_KEYS = tuple(f.name for f in dataclasses.fields(AdaptiveSettings))
 _PHANTOM_KEYS = ("seed", "counts", "depth_mm", "radius_mm", "min_gap_mm", *_ADAPTIVE_KEYS)
 _PRESS_KEYS = ("x_mm", "y_mm", "radius_mm", "depths_mm", "compare")
 _COMPARE_KEYS = ("label", "numerator", "denominator", "reference")
+_PROBE_KEYS = tuple(f.name for f in dataclasses.fields(ProbePresses))
+#: The table of phantoms each study kind reads; the others' tables are refused in it.
+KIND_TABLES = {"grid": "phantoms", "press": "press", "probes": "probes"}
 _MESH_KEYS = tuple(f.name for f in dataclasses.fields(MeshSettings))
 _MULTILEVEL_KEYS = tuple(f.name for f in dataclasses.fields(MultilevelSettings))
 
@@ -91,6 +96,28 @@ def _random_phantoms(where: _Where, tab: dict) -> RandomPhantoms:
                           radius_mm=_number_pair(where, "phantoms.radius_mm", tab.get("radius_mm",
                                                                                       list(d.radius_mm)), 0),
                           min_gap_mm=gap)
+
+
+def _refuse_other_tables(where: _Where, raw: Mapping, kind: str) -> None:
+    own = KIND_TABLES[kind]
+    for table in KIND_TABLES.values():
+        if table != own and table in raw:
+            raise where.error(table, f"no [{table}] table in a kind = '{kind}' study (use [{own}])", raw[table])
+
+
+def _probe_presses(where: _Where, tab: dict, designs: Sequence[LatticeDesign]) -> ProbePresses:
+    """The ``[probes]`` table: ``grid``, ``radius_mm``, ``depth_mm`` (:class:`ProbePresses`, its schema); the
+    depth checked against every design's stack (the radius against the cells where the probes are generated)."""
+    _known(where, tab, _PROBE_KEYS, "probes")
+    try:
+        probes = ProbePresses(**tab)
+    except ParameterError as exc:
+        raise where.wrap(f"probes.{exc.name}", exc) from None
+    thinnest = min(d.total_thickness_mm for d in designs)
+    if probes.depth_mm >= thinnest:
+        raise where.error("probes.depth_mm", f"0 < depth_mm < {thinnest:g} mm (the stack thickness H of every "
+                          "design)", probes.depth_mm)
+    return probes
 
 
 def _selector(where: _Where, key: str, val: object) -> tuple[tuple[str, object], ...]:

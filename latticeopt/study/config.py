@@ -3,13 +3,14 @@
 The schema is documented in ``docs/studies.md``. In short::
 
     name = "quick"            # optional; default: the file's stem
-    kind = "grid"             # "grid" (random phantoms) or "press" (one indenter, a depth series)
+    kind = "grid"             # "grid" (random phantoms), "press" (one indenter, a depth series) or "probes"
     out = "runs/quick"        # output folder (relative to the working directory)
     jobs = 2                  # worker processes
     [design]                  # fixed LatticeDesign fields
     [grid]                    # LatticeDesign fields -> lists of values (their product is the design set)
     [phantoms]                # kind = "grid": seed, counts per touch number, ranges; target_se (adaptive counts)
     [press]                   # kind = "press": indenter location, radius, depths, ratios to print
+    [probes]                  # kind = "probes": the probe grid (grid, radius_mm, depth_mm), scored for uniformity
     [mesh]                    # MeshSettings fields
     [physics]                 # model settings, keys in PHYSICS_KEYS
     [multilevel]              # kind = "grid": coarse mesh, pilot, se_factor (two-level estimate of the fine mean)
@@ -40,19 +41,21 @@ from ._tables import (
     _known,
     _multilevel,
     _press_series,
+    _probe_presses,
     _random_phantoms,
+    _refuse_other_tables,
     _string,
     _table,
     _Where,
 )
 from .keynames import origins
-from .phantoms import Phantom, PressSeries, RandomPhantoms
+from .phantoms import Phantom, PressSeries, ProbePresses, RandomPhantoms
 from .settings import DEFAULT_MODEL, PHYSICS_KEYS, AdaptiveSettings, EvalSettings, MultilevelSettings
 
 __all__ = ["DEFAULT_MODEL", "PHYSICS_KEYS", "STUDY_KINDS", "EvalSettings", "Study", "apply_overrides", "load_study",
            "parse_override", "read_study_table", "set_key", "study_from_dict"]
 
-STUDY_KINDS = ("grid", "press")
+STUDY_KINDS = ("grid", "press", "probes")
 
 
 # -- the study ----------------------------------------------------------------------------------------------
@@ -66,6 +69,9 @@ class Study:
         Every design of the grid, in grid order (the last grid key varies fastest).
     grid
         ``(field, values)`` pairs in file order.
+    phantom_set
+        The study's table of phantoms: random phantoms (``kind = "grid"``), a depth series (``"press"``) or the
+        probe grid (``"probes"``).
     phantoms
         The phantom set every design sees (common random numbers).
     multilevel
@@ -80,7 +86,7 @@ class Study:
     kind: str
     designs: tuple[LatticeDesign, ...]
     grid: tuple[tuple[str, tuple], ...]
-    phantom_set: RandomPhantoms | PressSeries
+    phantom_set: RandomPhantoms | PressSeries | ProbePresses
     phantoms: tuple[Phantom, ...]
     settings: EvalSettings
     out_dir: Path
@@ -151,10 +157,10 @@ def study_from_dict(raw: Mapping, *, source: str = "<dict>", overridden: Mapping
                           "design)", sorted(sizes))
 
     adaptive = None
+    _refuse_other_tables(where, raw, kind)
     if kind == "grid":
-        if "press" in raw:
-            raise where.error("press", "no [press] table in a kind = 'grid' study (use [phantoms])", raw["press"])
-        phantom_set: RandomPhantoms | PressSeries = _random_phantoms(where, _table(where, raw, "phantoms"))
+        phantom_set: RandomPhantoms | PressSeries | ProbePresses = _random_phantoms(where, _table(where, raw,
+                                                                                                 "phantoms"))
         adaptive = _adaptive(where, _table(where, raw, "phantoms"), sum(n for _, n in phantom_set.counts))
         table_name = "phantoms"
         # the range, not the draws: a depth range reaching the stack thickness is wrong even if no draw hits it
@@ -162,13 +168,13 @@ def study_from_dict(raw: Mapping, *, source: str = "<dict>", overridden: Mapping
         if phantom_set.depth_mm[1] >= thinnest:
             raise where.error("phantoms.depth_mm", f"[low, high] with 0 < low <= high < {thinnest:g} (the stack "
                               "thickness H of every design)", list(phantom_set.depth_mm))
-    else:
-        if "phantoms" in raw:
-            raise where.error("phantoms", "no [phantoms] table in a kind = 'press' study (use [press])",
-                              raw["phantoms"])
+    elif kind == "press":
         phantom_set = _press_series(where, _table(where, raw, "press"))
         _check_selectors(where, phantom_set, designs)
         table_name = "press"
+    else:
+        phantom_set = _probe_presses(where, _table(where, raw, "probes"), designs)
+        table_name = "probes"
     try:
         phantoms = phantom_set.generate(sizes.pop())
     except ParameterError as exc:
@@ -193,8 +199,9 @@ def study_from_dict(raw: Mapping, *, source: str = "<dict>", overridden: Mapping
     multilevel = None
     if "multilevel" in raw:
         if kind != "grid":
-            raise where.error("multilevel", "no [multilevel] table in a kind = 'press' study (a depth series is "
-                              "not a random sample)", raw["multilevel"])
+            what = "a depth series" if kind == "press" else "the probe grid"
+            raise where.error("multilevel", f"no [multilevel] table in a kind = '{kind}' study ({what} is not a "
+                              "random sample)", raw["multilevel"])
         if adaptive is not None:  # each chooses its own phantom counts; combining them is not implemented
             raise where.error("phantoms.target_se", "no phantoms.target_se in a study with [multilevel] (the two-"
                               "level estimator chooses its own fine counts; use one or the other)",

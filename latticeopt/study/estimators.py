@@ -6,6 +6,8 @@
   fine one (:mod:`.multilevel_sweep`, :mod:`.multilevel_report`).
 - :class:`AdaptiveEstimator` (``target_se`` in ``[phantoms]``): per design a prefix of one common phantom order,
   until its SE meets the target (:mod:`.adaptive_sweep`, :mod:`.adaptive_report`).
+- :class:`ProbeEstimator` (``kind = "probes"``): every design on every probe of the grid, as the plain estimator;
+  not a mean but the uniformity over the probes (:mod:`.probe_report`).
 
 :func:`estimator_for` picks one from the study, once; :func:`~.sweep.run_sweep` and ``sweep --dry-run`` use
 what it returns. Each estimator also names its :meth:`levels`: the settings it evaluates under and how many
@@ -24,11 +26,13 @@ from .config import Study
 from .engine import evaluate_designs
 from .multilevel_report import write_multilevel_outputs
 from .multilevel_sweep import MultilevelRun, run_multilevel
+from .probe_report import write_probe_outputs
 from .report import write_outputs
 from .settings import EvalSettings, coarse_level_settings
 from .store import Evaluation
 
-__all__ = ["AdaptiveEstimator", "Level", "Outcome", "PlainEstimator", "TwoLevelEstimator", "estimator_for"]
+__all__ = ["AdaptiveEstimator", "Level", "Outcome", "PlainEstimator", "ProbeEstimator", "TwoLevelEstimator",
+           "estimator_for"]
 
 
 @dataclass(frozen=True)
@@ -146,8 +150,24 @@ class AdaptiveEstimator:
         return write_adaptive_outputs(self.study, outcome.adaptive, out_dir)
 
 
-def estimator_for(study: Study) -> PlainEstimator | TwoLevelEstimator | AdaptiveEstimator:
-    """The study's estimator: two-level with ``[multilevel]``, adaptive with ``target_se``, else plain."""
+@dataclass(frozen=True)
+class ProbeEstimator(PlainEstimator):
+    """Every design on every probe of the grid (``kind = "probes"``), reported as uniformity (:mod:`.probe_report`)."""
+
+    def describe(self, settings: EvalSettings, stored: dict[str, int]) -> list[str]:
+        g = self.study.phantom_set
+        return [f"probes: a {g.grid} x {g.grid} grid, one punch of radius {g.radius_mm:g} mm pressed "
+                f"{g.depth_mm:g} mm at every cell centre; per design uniformity = 1 - std/mean of its probe V_rel"]
+
+    def write_outputs(self, outcome: Outcome, out_dir: Path) -> tuple[dict, list[str]]:
+        return write_probe_outputs(self.study, outcome.evaluations, out_dir)
+
+
+def estimator_for(study: Study) -> PlainEstimator | TwoLevelEstimator | AdaptiveEstimator | ProbeEstimator:
+    """The study's estimator: two-level with ``[multilevel]``, adaptive with ``target_se``, the probe grid's report
+    for ``kind = "probes"``, else plain."""
+    if study.kind == "probes":
+        return ProbeEstimator(study)
     if study.multilevel is not None:
         return TwoLevelEstimator(study)
     if study.adaptive is not None:

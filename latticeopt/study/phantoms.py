@@ -13,6 +13,10 @@ before it or on the machine, and every design of a study sees the same phantoms 
 ``Generator.random`` is used (53 random bits of one 64-bit PCG64 output per double) and mapped to ranges here
 (``lo + (hi - lo) * u``): SeedSequence, PCG64 and that map are fixed algorithms, so the phantoms do not
 change with the numpy version either.
+
+Probe presses (:class:`ProbePresses`, a ``kind = "probes"`` study and the optimizers' probe grid alike): one flat
+punch pressed at the centre of every cell of an ``n x n`` partition of the sensor, to score how uniform a design's
+response is over its area; nothing random.
 """
 
 from __future__ import annotations
@@ -29,13 +33,15 @@ from .. import _validate as v
 from ..errors import ParameterError
 from ..touches import Touch
 
-__all__ = ["MAX_TOUCHES", "Comparison", "Phantom", "PressSeries", "RandomPhantoms", "phantom_rng", "press_series",
-           "random_phantom", "random_phantoms"]
+__all__ = ["MAX_TOUCHES", "PROBE_GRID", "Comparison", "Phantom", "PressSeries", "ProbePresses", "RandomPhantoms",
+           "phantom_rng", "press_series", "random_phantom", "random_phantoms", "uniformity", "worst_to_best"]
 
 #: Most touches a random phantom may have (the paper uses 1, 2 and 3).
 MAX_TOUCHES = 5
 #: Whole-set redraws allowed before giving up (3 touches of radius <= 8.75 mm on 100 mm accept ~75 %).
 MAX_TRIES = 10_000
+#: Probes per side a probe grid may have: two at least (one probe has no spread), ten at most.
+PROBE_GRID = (2, 10)
 
 
 @dataclass(frozen=True)
@@ -223,3 +229,76 @@ class PressSeries:
 
     def generate(self, size_mm: float) -> tuple[Phantom, ...]:
         return press_series(self.x_mm, self.y_mm, self.radius_mm, self.depths_mm)
+
+
+@dataclass(frozen=True)
+class ProbePresses:
+    """The probe grid: one flat punch pressed at the centre of every cell of a ``grid x grid`` partition of the
+    sensor (``kind = "probes"``; the optimizers' ``uniformity`` term and the density studies' probes use the same).
+
+    Parameters
+    ----------
+    grid
+        Probes per side, :data:`PROBE_GRID` (2 to 10).
+    radius_mm
+        Punch radius (mm), > 0; it must fit in its cell, ``radius_mm <= L / (2 grid)`` (checked by
+        :meth:`generate`, which knows the sensor side ``L``).
+    depth_mm
+        Indentation depth of every probe (mm), > 0 (below the stack thickness: checked against the designs).
+    """
+
+    grid: int = 7
+    radius_mm: float = 6.25
+    depth_mm: float = 3.0
+
+    def __post_init__(self) -> None:
+        lo, hi = PROBE_GRID
+        object.__setattr__(self, "grid", v.integer("grid", self.grid, lo=lo, hi=hi,
+                                                   expected=f"an integer from {lo} to {hi} (probes per side)"))
+        object.__setattr__(self, "radius_mm", v.real("radius_mm", self.radius_mm, lo=0, lo_open=True))
+        object.__setattr__(self, "depth_mm", v.real("depth_mm", self.depth_mm, lo=0, lo_open=True))
+
+    @property
+    def n_probes(self) -> int:
+        return self.grid * self.grid
+
+    def cell(self, index: int) -> tuple[int, int]:
+        """Column and row ``(i % grid, i // grid)`` of probe ``index``: x varies fastest, both from the origin."""
+        return index % self.grid, index // self.grid
+
+    def max_radius_mm(self, size_mm: float) -> float:
+        """The largest radius whose probes stay each in its own cell on a ``size_mm`` sensor."""
+        return size_mm / (2 * self.grid)
+
+    def generate(self, size_mm: float) -> tuple[Phantom, ...]:
+        """The probes on a ``size_mm`` sensor: probe ``i`` (its phantom index) at the centre of cell
+        :meth:`cell` ``(i)``, ``((col + 0.5) L / grid, (row + 0.5) L / grid)``; kind ``"press"``.
+
+        Raises
+        ------
+        ParameterError
+            Named ``radius_mm`` when a probe would leave its cell.
+        """
+        n, r = self.grid, self.radius_mm
+        if r > self.max_radius_mm(size_mm):
+            raise ParameterError("radius_mm", f"radius_mm <= L / (2 grid) = {self.max_radius_mm(size_mm):g} mm "
+                                 f"(L = {size_mm:g} mm) so every probe of the {n} x {n} grid lies in its own cell", r)
+        c = (np.arange(n) + 0.5) * size_mm / n
+        return tuple(Phantom((Touch(x_mm=float(c[i % n]), y_mm=float(c[i // n]), radius_mm=r,
+                                    depth_mm=self.depth_mm),), index=i, kind="press") for i in range(n * n))
+
+
+def uniformity(v_rel: Sequence[float]) -> float:
+    """``1 - std / mean`` of the probes' V_rel, the population std (``ddof = 0``): 1 when every probe reads the
+    same; below 0 when the spread exceeds the mean. NaN for no values, a mean <= 0 or a NaN among them (a failed
+    probe): it is a statistic of the whole grid, never of a subset."""
+    p = np.asarray(v_rel, dtype=float).ravel()
+    m = float(np.mean(p)) if p.size else math.nan
+    return 1.0 - float(np.std(p)) / m if m > 0 else math.nan
+
+
+def worst_to_best(v_rel: Sequence[float]) -> float:
+    """Smallest over largest probe V_rel (NaN for no values, a largest <= 0 or a NaN among them)."""
+    p = np.asarray(v_rel, dtype=float).ravel()
+    best = float(p.max()) if p.size else math.nan
+    return float(p.min()) / best if best > 0 else math.nan

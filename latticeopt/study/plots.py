@@ -1,4 +1,5 @@
-"""Figures of a finished sweep: V_rel against the first grid field, the two-field heat map, press curves.
+"""Figures of a finished sweep: V_rel against the first grid field, the two-field heat map, press curves, the
+probe grid's heat maps.
 
 Every figure names the layout (lattice family, pitch, rim channel or not), the mesh that made it, says whether
 that mesh is converged (at least the default mesh for every design), and how many phantoms each mean is over.
@@ -7,6 +8,7 @@ that mesh is converged (at least the default mesh for every design), and how man
 from __future__ import annotations
 
 import math
+import textwrap
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -14,11 +16,11 @@ import numpy as np
 
 from ..captions import layout_caption, wrap_title
 from ..mesh import MeshSettings
-from ._rows import _by_design, _label, _value
+from ._rows import _by_design, _label, _names, _value
 from .config import Study
 from .store import Evaluation
 
-__all__ = ["plot_heatmap", "plot_lines", "plot_press"]
+__all__ = ["plot_heatmap", "plot_lines", "plot_press", "plot_probes"]
 
 
 def _x_field(study: Study) -> str:
@@ -176,5 +178,47 @@ def plot_press(study: Study, evaluations: Sequence[Evaluation], path: Path) -> P
                         f"{len(depths)} depths", study), fontsize=8.5)
     ax.grid(alpha=0.3)
     ax.legend(fontsize="small")
+    fig.savefig(path, dpi=130)
+    return path
+
+
+def plot_probes(study: Study, maps: Sequence[np.ndarray], summary: Sequence[dict], path: Path) -> Path:
+    """Per design a heat map of probe V_rel on the ``n x n`` probe grid (x and y in mm, the sensor's own axes),
+    every map on one colour scale, titled by the design (a layout file by its file name) and its uniformity; a
+    failed probe is grey and crossed."""
+    import matplotlib
+    from matplotlib.figure import Figure
+
+    grid, L = study.phantom_set, study.designs[0].size_mm
+    cols = len(maps) if len(maps) <= 3 else min(math.ceil(math.sqrt(len(maps))), 4)
+    rows = math.ceil(len(maps) / cols)
+    fig = Figure(figsize=(max(6.4, 2.4 * cols + 1.2), 2.5 * rows + 1.3), layout="constrained")
+    axes = fig.subplots(rows, cols, squeeze=False)
+    finite = np.concatenate([m[np.isfinite(m)] for m in maps])
+    lo, hi = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 1.0)
+    cmap = matplotlib.colormaps["viridis"].with_extremes(bad="0.85")
+    centres = (np.arange(grid.grid) + 0.5) * L / grid.grid
+    image = None
+    for k, (ax, vals, name, s) in enumerate(zip(axes.flat, maps, _names(study), summary)):
+        image = ax.imshow(np.ma.masked_invalid(vals), origin="lower", extent=(0, L, 0, L), cmap=cmap, vmin=lo,
+                          vmax=hi)
+        for r, c in zip(*np.nonzero(~np.isfinite(vals))):
+            ax.plot(centres[c], centres[r], marker="x", color="crimson", markersize=6)
+        u = s["uniformity"]
+        # a file name is one long word: wrap at its spaces only (", " between grid values), never inside it
+        ax.set_title(textwrap.fill(name, 36, break_long_words=False) + "\n" + (
+            f"uniformity {u:.3f}" if math.isfinite(u) else f"uniformity n/a, {s['failed']} failed"), fontsize=7.5)
+        ax.tick_params(labelsize=6.5)
+        if k % cols == 0:
+            ax.set_ylabel("y (mm)", fontsize=7)
+        if k + cols >= len(maps):  # nothing below it
+            ax.set_xlabel("x (mm)", fontsize=7)
+    for ax in axes.flat[len(maps):]:
+        ax.set_visible(False)
+    bar = fig.colorbar(image, ax=axes, shrink=0.9)
+    bar.set_label("probe $V_{rel}$", fontsize=8)
+    bar.ax.tick_params(labelsize=7)
+    fig.suptitle(_title(f"{study.name}: V_rel of {grid.grid} x {grid.grid} probes, r = {grid.radius_mm:g} mm, "
+                        f"{grid.depth_mm:g} mm deep, at the cell centres", study), fontsize=8.5)
     fig.savefig(path, dpi=130)
     return path

@@ -89,6 +89,9 @@ def load_variants(path: str | Path, variations: Sequence[Variation], overrides: 
         return study_from_dict(table, source=str(path), overridden=where, default_name=Path(path).stem)
 
     base = study_from_dict(raw, source=str(path), overridden=named, default_name=Path(path).stem)
+    if base.kind == "probes":  # its figures would be a mean over the probes, with a sampling SE a fixed grid lacks
+        raise ParameterError(f"{path}: kind", "'grid' or 'press' in a sensitivity study (its figures are mean V_rel "
+                             "and press ratios; the probe grid's uniformity is not one of them)", base.kind)
     if base.adaptive is not None:  # every run must be compared on the same, full phantom set
         raise ParameterError(f"{path}: phantoms.target_se", "no adaptive phantom counts in a sensitivity study (each "
                              "run is summarized over every phantom)", base.adaptive.target_se)
