@@ -210,3 +210,177 @@ def test_a_small_pilot_keeps_precision_and_coverage_on_right_skewed_values():
         plain.append(multilevel_estimate(c, f, strata).mean - truth)
     assert math.sqrt(np.mean(np.square(errors))) < 1.12 * np.std(plain)
     assert np.mean(covered) > 0.92
+
+
+# -- the control-variate coefficient (control = "fixed" / "fitted") ------------------------------------------
+
+def _old_rows(c, f, s):
+    """The estimator before ``control`` existed (beta = 1), copied as it was: the reference for bit-identity."""
+    rows = []
+    for k in np.unique(s):
+        ck, fk = c[s == k], f[s == k]
+        has = np.isfinite(fk)
+        n = int(has.sum())
+        d = fk[has] - ck[has]
+        var_d = float(np.var(d, ddof=1)) if n > 1 else 0.0
+        var_c_sub = float(np.var(ck[has], ddof=1)) if n > 1 else 0.0
+        var_f = float(np.var(fk[has], ddof=1)) + float(np.var(ck, ddof=1)) - var_c_sub if n > 1 else 0.0
+        rows.append((ck.size / c.size, ck.size, n, float(ck.mean()), float(d.mean()), max(var_f, 0.0), var_d,
+                     var_c_sub))
+    return rows
+
+
+def _old_estimate(c, f, s):
+    coarse_mean = corr = var = var_c = var_d = var_plain = 0.0
+    rows = _old_rows(c, f, s)
+    for w, n_c, n_f, c_mean, d_mean, var_f, v_d, v_c in rows:
+        coarse_mean += w * c_mean
+        corr += w * d_mean
+        var += w * w * (var_f / n_c + v_d * (1.0 / n_f - 1.0 / n_c))
+        var_c += w * w * v_c / n_c
+        var_d += w * w * v_d / n_f
+        var_plain += w * w * var_f / n_c
+    return (coarse_mean + corr, math.sqrt(max(var, 0.0)), coarse_mean, math.sqrt(var_c), corr, math.sqrt(var_d),
+            sum(r[2] for r in rows), sum(r[1] for r in rows), math.sqrt(var_plain))
+
+
+def _old_predicted(c, f, s, se_factor):
+    rows = _old_rows(c, f, s)
+    n_total = sum(r[1] for r in rows)
+    b = sum(w * v_d for w, _, _, _, _, _, v_d, _ in rows)
+    var_plain = sum(w * w * var_f / n_c for w, n_c, _, _, _, var_f, _, _ in rows)
+    denom = (se_factor ** 2 - 1.0) * var_plain + b / n_total
+    return float(n_total) if denom <= 0 else min(float(n_total), b / denom)
+
+
+def test_control_fixed_is_bit_identical_to_the_estimator_before_control_existed():
+    rng = np.random.default_rng(123)
+    fields = ("mean", "se", "coarse_mean", "coarse_se", "correction_mean", "correction_se", "n_fine", "n_coarse",
+              "plain_fine_se")
+    for r in range(150):
+        k = int(rng.integers(1, 4))
+        s = np.repeat(np.arange(1, k + 1), rng.integers(5, 60, k))
+        f = rng.lognormal(-3, 0.7, s.size)
+        c = 0.9 * f + 0.01 * rng.standard_normal(s.size)
+        c[rng.random(s.size) < 0.05 * (r % 2)] *= 3  # a heavy tail on every other map
+        n = int(rng.integers(min_fine_count(s), s.size + 1))
+        fine = _prefix(f, s, n)
+        e = multilevel_estimate(c, fine, s, control="fixed")
+        assert tuple(getattr(e, x) for x in fields) == _old_estimate(c, fine, s)  # ==: bit for bit
+        assert e.beta == 1.0 and e == multilevel_estimate(c, fine, s)  # and the default is "fixed"
+        assert predicted_fine_count(c, fine, s, se_factor=1.1, control="fixed") == _old_predicted(c, fine, s, 1.1)
+        old_next = n if n == s.size or _old_estimate(c, fine, s)[1] <= 1.1 * _old_estimate(c, fine, s)[8] else \
+            min(s.size, max(n + max(1, n // 4), min(2 * n, math.ceil(_old_predicted(c, fine, s, 1.1)))))
+        assert next_fine_count(c, fine, s, n, pilot=2, se_factor=1.1) == old_next
+
+
+def test_fitted_beta_recovers_cov_over_var_of_the_pairs():
+    rng = np.random.default_rng(2)
+    s = np.repeat([1, 2, 3], [40, 60, 50])
+    c = rng.lognormal(-3, 0.5, s.size)
+    exact = np.array([0.01, -0.02, 0.03])[s - 1] + 0.7 * c  # exactly linear, its own intercept per stratum
+    fine = _prefix(exact, s, 45)
+    assert multilevel_estimate(c, fine, s, control="fitted").beta == pytest.approx(0.7, rel=1e-12)
+    noisy = 0.7 * c + 0.01 * rng.standard_normal(s.size)  # one stratum: the pairs' sample cov / var
+    fine = _prefix(noisy, np.zeros(s.size, dtype=int), 30)
+    has = np.isfinite(fine)
+    want = np.cov(fine[has], c[has])[0, 1] / np.var(c[has], ddof=1)
+    assert multilevel_estimate(c, fine, control="fitted").beta == pytest.approx(want, rel=1e-12)
+    assert abs(want - 0.7) > 1e-3  # the noise moved it: the pairs' own moments are used, not the truth
+    # several strata with their own slopes: pooled with the weights w_k^2 (1/n_k - 1/N_k) of var_k(G) in Var(mu)
+    slopes = np.array([0.5, 1.0, 1.5])[s - 1]
+    fine = _prefix(slopes * c + 0.005 * rng.standard_normal(s.size), s, 45)
+    num = den = 0.0
+    for k in (1, 2, 3):
+        sel = (s == k) & np.isfinite(fine)
+        a = (np.sum(s == k) / s.size) ** 2 * (1 / sel.sum() - 1 / np.sum(s == k))
+        num += a * np.cov(fine[sel], c[sel])[0, 1]
+        den += a * np.var(c[sel], ddof=1)
+    assert multilevel_estimate(c, fine, s, control="fitted").beta == pytest.approx(num / den, rel=1e-12)
+    # too few pairs for a slope and a variance (n - K < 2): beta = 1
+    two = _prefix(noisy, np.zeros(s.size, dtype=int), 2)
+    assert multilevel_estimate(c, two, control="fitted") == multilevel_estimate(c, two)
+    with pytest.raises(ValueError, match="control must be one of fixed, fitted, got 'best'"):
+        multilevel_estimate(c, fine, s, control="best")
+
+
+def test_variance_formula_for_a_fitted_beta_matches_the_monte_carlo_spread():
+    # F = 0.5 C + e: the population beta is 0.5, far from 1. Var(mu) = var(F)/N + var(F - 0.5 C)(1/n - 1/N)
+    # with population variances; the fitted estimate's spread must match it (its extra variance is O(1/n^2))
+    # and not the beta = 1 value var(F)/N + var(F - C)(1/n - 1/N), 2.4 times as large here
+    rng = np.random.default_rng(31)
+    big, n, reps = 300, 60, 3000
+    sd_c, sd_e = 0.02, 0.004
+    var_f, var_g, var_d = 0.25 * sd_c ** 2 + sd_e ** 2, sd_e ** 2, 0.25 * sd_c ** 2 + sd_e ** 2
+    theory = math.sqrt(var_f / big + var_g * (1 / n - 1 / big))
+    at_one = math.sqrt(var_f / big + var_d * (1 / n - 1 / big))
+    assert at_one > 1.5 * theory
+    est, ses = np.empty(reps), np.empty(reps)
+    one = np.zeros(big, dtype=int)
+    for r in range(reps):
+        c = 0.05 + sd_c * rng.standard_normal(big)
+        f = 0.5 * c + sd_e * rng.standard_normal(big)
+        e = multilevel_estimate(c, _prefix(f, one, n), control="fitted")
+        est[r], ses[r] = e.mean, e.se
+    assert est.std(ddof=1) == pytest.approx(theory, rel=0.05)  # the SD of an SD from 3000 draws: 1.3 %
+    assert math.sqrt(np.mean(ses ** 2)) == pytest.approx(theory, rel=0.05)
+    assert abs(est.mean() - 0.025) < 4 * theory / math.sqrt(reps)
+
+
+def test_bias_of_a_fitted_beta_is_the_stated_order_one_over_n_term():
+    # C normal, e = a ((C - mu)^2 - var C) + noise: E[(C - mu)^2 e] = 2 a var(C)^2, so the module docstring's
+    # bias -(1/n - 1/N) E[(C - mu)^2 e] / var(C) is -(1/n - 1/N) 2 a var(C) (exact for normal C). The fixed
+    # control on the same maps is unbiased, which shows the bias is the fitted beta's, not the data's
+    rng = np.random.default_rng(41)
+    big, n, reps, a = 300, 10, 4000, 0.5
+    one = np.zeros(big, dtype=int)
+    fitted, fixed = np.empty(reps), np.empty(reps)
+    for r in range(reps):
+        c = rng.standard_normal(big)
+        f = c + a * (c ** 2 - 1) + 0.3 * rng.standard_normal(big)  # true mean 0, population beta 1
+        fine = _prefix(f, one, n)
+        fitted[r] = multilevel_estimate(c, fine, control="fitted").mean
+        fixed[r] = multilevel_estimate(c, fine, control="fixed").mean
+    bias = -(1 / n - 1 / big) * 2 * a
+    mc_se = fitted.std(ddof=1) / math.sqrt(reps)
+    assert abs(bias) > 15 * mc_se  # large enough to be seen
+    assert abs(fitted.mean() - bias) < 4 * mc_se
+    assert abs(fixed.mean()) < 4 * fixed.std(ddof=1) / math.sqrt(reps)
+
+
+def test_fitted_coverage_of_two_se_at_a_fixed_count():
+    # 2000 maps, three touch counts, 10 fine phantoms each, beta 0.6. The binomial SD of a coverage near 0.954
+    # from 2000 maps is 0.0047, so [0.93, 0.975] is about 5 SD either side of the nominal value (the plug-in SE
+    # from 10 pairs per stratum costs well under 1 % of coverage); an SE 1.5 times too small would cover 0.82
+    # and fail, which is what the plain fine SE (the SE if every phantom were fine) is here: checked too
+    rng = np.random.default_rng(51)
+    reps, n = 2000, 30
+    hit, hit_plain, ratios = [], [], []
+    for _ in range(reps):
+        c, _ = _draw(rng)  # E[C] = 0.9 mu_k - 0.003 per stratum; so E[F] = mu_k, the truth
+        mu = np.array([TRUE_MEANS[k] for k in STRATA])
+        f = mu + 0.6 * (c - (0.9 * mu - 0.003)) + 0.006 * rng.standard_normal(STRATA.size)
+        e = multilevel_estimate(c, _prefix(f, STRATA, n), STRATA, control="fitted")
+        hit.append(abs(e.mean - _true_mean()) <= 2 * e.se)
+        hit_plain.append(abs(e.mean - _true_mean()) <= 2 * e.plain_fine_se)
+        ratios.append(e.se_ratio)
+    assert 0.93 <= np.mean(hit) <= 0.975
+    assert np.mean(ratios) > 1.3 and np.mean(hit_plain) < 0.88
+
+
+def test_the_fine_count_rule_stops_exactly_when_the_controls_estimate_meets_the_criterion():
+    rng = np.random.default_rng(61)
+    disagree = 0
+    for _ in range(300):
+        c, f = _draw(rng, noise=0.004)
+        f = f + 0.4 * (c - 0.9 * f)  # coarse errors correlated with the values: beta away from 1
+        n = int(rng.integers(min_fine_count(STRATA), 60))
+        fine = _prefix(f, STRATA, n)
+        stops = {}
+        for control in ("fixed", "fitted"):
+            e = multilevel_estimate(c, fine, STRATA, control=control)
+            nxt = next_fine_count(c, fine, STRATA, n, pilot=2, se_factor=1.1, control=control)
+            assert (nxt == n) == e.meets(1.1)
+            stops[control] = nxt == n
+        disagree += stops["fixed"] != stops["fitted"]
+    assert disagree >= 5  # the two controls' variances differ enough to matter: the check is not vacuous

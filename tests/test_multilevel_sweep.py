@@ -189,7 +189,8 @@ def _cli(tmp_path: Path, *extra: str):
                                            "multilevel.coarse_physics.mechanics_rtol"),
                                           ("multilevel.coarse_physics.gel=2", "multilevel.coarse_physics"),
                                           ("multilevel.coarse_physics=3", "multilevel.coarse_physics"),
-                                          ("multilevel.coarse_electrics=both", "multilevel.coarse_electrics")])
+                                          ("multilevel.coarse_electrics=both", "multilevel.coarse_electrics"),
+                                          ("multilevel.control=best", "--set multilevel.control")])
 def test_cli_bad_values_exit_2_with_one_line_naming_the_key(tmp_path, setting, key):
     _study(tmp_path)
     done = _cli(tmp_path, "--set", setting)
@@ -197,6 +198,43 @@ def test_cli_bad_values_exit_2_with_one_line_naming_the_key(tmp_path, setting, k
     err = done.stderr.strip().splitlines()
     assert len(err) == 1 and key in err[0]
     assert not (tmp_path / "out" / "results.sqlite").exists()  # refused before any work
+
+
+def test_cli_bad_control_names_the_key_the_allowed_values_and_what_arrived(tmp_path):
+    _study(tmp_path)
+    done = _cli(tmp_path, "--set", "multilevel.control=beta1")
+    assert done.returncode == 2 and "Traceback" not in done.stderr
+    (line,) = done.stderr.strip().splitlines()
+    assert "multilevel.control" in line and "'fixed'" in line and "'fitted'" in line and "beta1" in line
+
+
+def test_fitted_control_reuses_every_stored_row_and_reports_its_beta(tmp_path, monkeypatch):
+    # the store holds per-phantom values, which the estimator does not change: the same study with
+    # control = "fitted" reads every coarse row and the fine rows it shares, and runs only the fine phantoms
+    # its own stopping rule asks for beyond them
+    log = tmp_path / "calls.log"
+    monkeypatch.setenv(LOG_ENV, str(log))
+    fixed = run_sweep(_study(tmp_path), fake_two_level, progress=False)
+    assert "control fixed: beta = 1" in (fixed.out_dir / "report.txt").read_text()
+    before = len(logged_calls(log))
+    study = _study(tmp_path, overrides=["multilevel.control=fitted"])
+    res = run_sweep(study, fake_two_level, progress=False)
+    ml, ref = res.multilevel, fixed.multilevel
+    assert (ml.coarse_settings.key, ml.fine_settings.key) == (ref.coarse_settings.key, ref.fine_settings.key)
+    assert ml.computed_coarse == 0
+    assert ml.computed_fine == sum(max(0, a - b) for a, b in zip(ml.n_fine, ref.n_fine))
+    assert len(logged_calls(log)) == before + ml.computed_fine
+    with open(res.outputs["summary"]) as fh:
+        summary = list(csv.DictReader(fh))
+    report = (res.out_dir / "report.txt").read_text()
+    assert "control fitted" in report
+    for i in range(len(study.designs)):
+        want = multilevel_estimate(*ml.level_arrays(study, i), control="fitted")
+        assert ml.estimates[i] == want and abs(want.beta - 1) > 0.05  # the fake coarse level is 0.9 F + ...
+        assert want.se <= 1.1 * want.plain_fine_se
+        assert float(summary[i]["beta"]) == pytest.approx(want.beta, rel=1e-12)
+        assert f"fitted beta {want.beta:.3f}" in report
+        assert multilevel_estimate(*ml.level_arrays(study, i)).beta == 1.0
 
 
 def test_cli_set_pilot_runs_and_prints_the_report(tmp_path):

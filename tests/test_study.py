@@ -257,7 +257,8 @@ pilot = 4
 def test_multilevel_table_loads_and_its_absence_is_the_plain_estimator(tmp_path):
     s = load_study(_write(tmp_path, ML))
     assert s.multilevel.coarse == MeshSettings(size_mm=8.0, channel_cells=1)
-    assert (s.multilevel.pilot, s.multilevel.se_factor) == (4, 1.1)
+    assert (s.multilevel.pilot, s.multilevel.se_factor, s.multilevel.control) == (4, 1.1, "fixed")
+    assert load_study(_write(tmp_path, ML), ["multilevel.control=fitted"]).multilevel.control == "fitted"
     assert s.settings.mesh == MeshSettings(size_mm=5.0)  # [mesh] stays the fine level
     assert load_study(_write(tmp_path, ML), ["multilevel.pilot=7"]).multilevel.pilot == 7
     assert load_study(_write(tmp_path, BASE)).multilevel is None
@@ -269,6 +270,8 @@ def test_multilevel_table_loads_and_its_absence_is_the_plain_estimator(tmp_path)
     ("pilot = 4\nse_factor = 0.9", "multilevel.se_factor"),
     ("pilot = 4\nse_factor = true", "multilevel.se_factor"),
     ("pilot = 4\nsteps = 3", "multilevel.steps"),
+    ('pilot = 4\ncontrol = "beta"', "multilevel.control"),
+    ("pilot = 4\ncontrol = 1", "multilevel.control"),
 ])
 def test_multilevel_errors_name_the_key(tmp_path, edit, key):
     with pytest.raises(ParameterError) as info:

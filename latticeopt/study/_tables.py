@@ -33,7 +33,7 @@ _TOP = {"name": "study name (default: file stem)", "description": "free text",
         "grid": "table: design field -> list of values", "phantoms": "table (kind = 'grid')",
         "press": "table (kind = 'press')", "probes": "table (kind = 'probes')", "mesh": "table of mesh settings",
         "physics": "table of model settings",
-        "multilevel": "table: coarse mesh, pilot, se_factor (kind = 'grid')"}
+        "multilevel": "table: coarse mesh, pilot, se_factor, control (kind = 'grid')"}
 _ADAPTIVE_KEYS = tuple(f.name for f in dataclasses.fields(AdaptiveSettings))
 _PHANTOM_KEYS = ("seed", "counts", "depth_mm", "radius_mm", "min_gap_mm", *_ADAPTIVE_KEYS)
 _PRESS_KEYS = ("x_mm", "y_mm", "radius_mm", "depths_mm", "compare")
@@ -218,7 +218,7 @@ def _check_touches(where: _Where, table: str, designs: Sequence[LatticeDesign], 
 
 def _multilevel(where: _Where, tab: dict, fine: MeshSettings) -> MultilevelSettings:
     """The ``[multilevel]`` table: ``coarse`` (a mesh table), ``coarse_physics`` (a physics table), ``pilot``,
-    ``se_factor``."""
+    ``se_factor``, ``control``."""
     _known(where, tab, _MULTILEVEL_KEYS, "multilevel")
     kwargs = dict(tab)
     # the coarse mesh is the fine one with the keys given changed: a coarse level that also switched mesher,

@@ -13,7 +13,7 @@ The schema is documented in ``docs/studies.md``. In short::
     [probes]                  # kind = "probes": the probe grid (grid, radius_mm, depth_mm), scored for uniformity
     [mesh]                    # MeshSettings fields
     [physics]                 # model settings, keys in PHYSICS_KEYS
-    [multilevel]              # kind = "grid": coarse mesh, pilot, se_factor (two-level estimate of the fine mean)
+    [multilevel]              # kind = "grid": coarse mesh, pilot, se_factor, control (two-level fine mean)
 
 Every problem is reported before any work as a :class:`ParameterError` whose name is
 ``"<file>: <dotted key>"`` (or ``"--set <dotted key>"`` when the value came from the command line); an unknown

@@ -114,7 +114,7 @@ class TwoLevelEstimator:
         return [f"two-level: every phantom also with the mechanics on the coarse mesh {ml.coarse.size_mm:g} mm "
                 f"(electrics on the {ml.coarse_electrics} mesh{extra}; {stored_coarse} of {self.study.n_tasks} "
                 f"stored), the fine level on a pilot of {ml.pilot} and more until SE <= {ml.se_factor:g} x the "
-                "plain fine SE (counted above: the fine level if every phantom were run)"]
+                f"plain fine SE (control {ml.control}; counted above: the fine level if every phantom were run)"]
 
     def run(self, settings: EvalSettings, out_dir: Path, evaluate: Callable, **executor) -> Outcome:
         ml = run_multilevel(self.study, settings, out_dir, evaluate, **executor)

@@ -3,13 +3,15 @@
 ``summary.csv`` per design: ``v_rel_mean`` and ``v_rel_se`` are the two-level estimate of the fine mean and its
 SE (so the figures of :mod:`.plots` show it), then the coarse mean and SE over ``n_coarse`` phantoms, the mean
 fine-minus-coarse correction and its SE over ``n_fine``, the estimated SE of the plain fine mean over all
-``n_coarse`` phantoms it is compared with and their ratio. ``results.csv`` has one row per evaluation of either
-level (``level``), ``used`` marking those that enter the estimate.
+``n_coarse`` phantoms it is compared with and their ratio, and ``beta``, the control-variate coefficient
+(1 with ``control = "fixed"``, the design's fitted one with ``"fitted"``). ``results.csv`` has one row per
+evaluation of either level (``level``), ``used`` marking those that enter the estimate.
 
 Paired differences. Designs see the same phantoms at both levels, so the difference of two designs is itself a
 two-level estimate: coarse ``C_a - C_b`` over every used phantom plus the correction ``D_a - D_b`` over the
 phantoms both designs have fine, the first ``min(n_a, n_b)`` of the common fine order
-(:func:`~latticeopt.study.multilevel.multilevel_estimate` applied to the differences). It is unbiased for the
+(:func:`~latticeopt.study.multilevel.multilevel_estimate` applied to the differences, with the study's
+``control``; a fitted ``beta`` is then the difference's own). With ``beta = 1`` it is unbiased for the
 difference of the fine means and its SE is exact in the same sense as a design's own; it may differ slightly
 from the difference of the two designs' estimates, which use more fine phantoms for one of them.
 """
@@ -44,6 +46,7 @@ def multilevel_summary(study: Study, run: MultilevelRun) -> list[dict]:
                    correction_mean=e.correction_mean if e else nan, correction_se=e.correction_se if e else nan,
                    n_fine=e.n_fine if e else 0, n_coarse=e.n_coarse if e else 0,
                    plain_fine_se_est=e.plain_fine_se if e else nan, se_ratio=e.se_ratio if e else nan,
+                   beta=e.beta if e else nan,
                    n=e.n_coarse if e else 0, failed_coarse=sum(not ev.ok for ev in own),
                    failed_fine=sum(not ev.ok for ev in fine),
                    seconds_coarse=sum(ev.seconds or 0.0 for ev in own),
@@ -68,7 +71,7 @@ def paired_difference(study: Study, run: MultilevelRun, a: int, b: int):
     for j in run.order[:m]:
         f[pos[j]] = run.fine[(a, j)].v_rel - run.fine[(b, j)].v_rel
     strata = np.array([study.phantoms[j].n_touches for j in run.used])
-    return multilevel_estimate(c, f, strata)
+    return multilevel_estimate(c, f, strata, control=study.multilevel.control)
 
 
 def model_seconds(study: Study, run: MultilevelRun) -> dict[str, float]:
@@ -151,7 +154,10 @@ def write_multilevel_outputs(study: Study, run: MultilevelRun, out: Path) -> tup
     lines = [f"{study.name}: {len(study.designs)} designs x {nph} phantoms; two-level estimator: coarse mesh "
              f"{c.size_mm:g} mm ({c.channel_cells} channel cells, electrics on the {ml.coarse_electrics} mesh{extra}) "
              f"on every phantom, fine mesh {f.size_mm:g} mm "
-             f"on a nested subset until SE <= {ml.se_factor:g} x the estimated plain fine SE (pilot {ml.pilot})",
+             f"on a nested subset until SE <= {ml.se_factor:g} x the estimated plain fine SE (pilot {ml.pilot}); "
+             + ("control fixed: beta = 1 (coarse mean plus the mean fine-minus-coarse correction)"
+                if ml.control == "fixed" else "control fitted: beta = cov(F, C) / var(C) per design, pooled over "
+                "the touch counts' fine phantoms"),
              f"phantoms used: {len(run.used)} of {nph} (those every compared design solved at both levels where "
              f"run); fine phantoms per design: {min(run.n_fine[i] for i in run.compared) if run.compared else 0}"
              f"-{max(run.n_fine) if run.compared else 0}; computed now: {run.computed_coarse} coarse, "
@@ -176,7 +182,8 @@ def write_multilevel_outputs(study: Study, run: MultilevelRun, out: Path) -> tup
         lines.append(f"{rank}. {_fmt(study.designs[i], study.grid_fields)}: mean V_rel = {e.mean:.5f} ± {e.se:.5f} "
                      f"(coarse {e.coarse_mean:.5f} ± {e.coarse_se:.5f} over N = {e.n_coarse}, correction "
                      f"{e.correction_mean:+.5f} ± {e.correction_se:.5f} over n = {e.n_fine}; plain fine SE est. "
-                     f"{e.plain_fine_se:.5f}, ratio {e.se_ratio:.2f})")
+                     f"{e.plain_fine_se:.5f}, ratio {e.se_ratio:.2f}"
+                     + (f"; fitted beta {e.beta:.3f})" if ml.control == "fitted" else ")"))
     if len(order) > 1:
         d = paired_difference(study, run, order[0], order[1])
         z = d.mean / d.se if d.se else math.nan

@@ -11,7 +11,8 @@ store. Steps:
    prefix of that one order, so it is nested and common to all designs.
 3. A pilot prefix on the fine mesh (the study's own settings), then, per design, longer prefixes
    (:func:`~latticeopt.study.multilevel.next_fine_count`) until the two-level SE is within ``se_factor`` of the
-   estimated plain fine SE or every phantom is fine. Designs asking for the same prefix are evaluated together.
+   estimated plain fine SE or every phantom is fine (the SE of the estimate with ``multilevel.control``'s
+   coefficient). Designs asking for the same prefix are evaluated together.
 
 Both levels go through :func:`~latticeopt.study.engine.evaluate_designs` into the one store, each under its own
 settings key (the key hashes the mesh): an interrupted run started again reads everything stored, makes the
@@ -135,7 +136,7 @@ def run_multilevel(study: Study, settings: EvalSettings, out_dir, evaluate: Call
                 want[i] = n[i]
                 continue
             c, f, s = _arrays(study, coarse, fine, used, order, i, n[i])
-            nxt = next_fine_count(c, f, s, n[i], pilot=ml.pilot, se_factor=ml.se_factor)
+            nxt = next_fine_count(c, f, s, n[i], pilot=ml.pilot, se_factor=ml.se_factor, control=ml.control)
             if nxt != n[i]:
                 want[i] = nxt
         if not want:
@@ -146,7 +147,8 @@ def run_multilevel(study: Study, settings: EvalSettings, out_dir, evaluate: Call
     estimates: list[MultilevelEstimate | None] = [None] * nd
     for i in compared:
         if used and n[i]:
-            estimates[i] = multilevel_estimate(*_arrays(study, coarse, fine, used, order, i, n[i]))
+            estimates[i] = multilevel_estimate(*_arrays(study, coarse, fine, used, order, i, n[i]),
+                                               control=ml.control)
     return MultilevelRun(coarse_settings=coarse_settings, fine_settings=settings, coarse=coarse, fine=fine,
                          used=tuple(used), order=tuple(order), n_fine=tuple(n.get(i, 0) for i in range(nd)),
                          estimates=tuple(estimates), compared=tuple(compared), computed_coarse=computed_coarse,

@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 from .. import _validate as v
 from ..errors import ParameterError
 from ..mesh import MeshSettings
+from .multilevel import CONTROLS
 
 __all__ = ["COARSE_ELECTRICS", "DEFAULT_MODEL", "PHYSICS_KEYS", "AdaptiveSettings", "EvalSettings",
            "MultilevelSettings", "coarse_level_settings"]
@@ -182,6 +183,12 @@ class MultilevelSettings:
     se_factor
         More fine phantoms are run until the two-level SE is at most ``se_factor`` times the estimated SE of
         the plain fine mean over all phantoms (or every phantom is fine), >= 1.
+    control
+        The control-variate coefficient ``beta`` of the estimate ``mean_n(F) - beta (mean_n(C) - mean_N(C))``:
+        ``"fixed"`` (default, ``beta = 1``: coarse mean plus the mean fine-minus-coarse correction) or
+        ``"fitted"`` (per design, ``cov(F, C) / var(C)`` pooled over the touch counts' pairs;
+        :mod:`latticeopt.study.multilevel`). Not part of any results-store key: it changes which fine phantoms
+        a design asks for, not any phantom's value.
     """
 
     coarse: MeshSettings = field(default_factory=lambda: MeshSettings(size_mm=4.0, channel_cells=1))
@@ -189,6 +196,7 @@ class MultilevelSettings:
     coarse_physics: tuple[tuple[str, object], ...] = (("mechanics_rtol", 1e-2),)
     pilot: int = 15
     se_factor: float = 1.1
+    control: str = "fixed"
 
     def __post_init__(self) -> None:
         if not isinstance(self.coarse, MeshSettings):
@@ -208,6 +216,7 @@ class MultilevelSettings:
         if not ok or not 1 <= self.se_factor < float("inf"):
             raise ParameterError("se_factor", "a number >= 1 (allowed SE over the plain fine SE)", self.se_factor)
         object.__setattr__(self, "se_factor", float(self.se_factor))
+        object.__setattr__(self, "control", v.choice("control", self.control, CONTROLS))
 
 
 # -- adaptive phantom counts (target_se and friends in [phantoms]) -------------------------------------------
