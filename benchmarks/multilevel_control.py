@@ -110,7 +110,7 @@ def main(argv=None) -> int:
         sd = float(np.std(plain))
         for control in CONTROLS:
             ns, err, se, beta = (np.array(v) for v in res[control])
-            print(f"| {label} ({over:.1%} / {under:.1%}) | {np.mean(ratio):.3f} | {control} | "
+            print(f"| {label} ({100 * over:g} % / {100 * under:g} %) | {np.mean(ratio):.3f} | {control} | "
                   f"{ns.mean():.0f} / {np.median(ns):.0f} | {np.sqrt(np.mean(err ** 2)) / sd:.3f} | "
                   f"{np.mean(se) / sd:.3f} | {np.mean(np.abs(err) <= 2 * se):.3f} | {err.mean() / err.std():+.3f} | "
                   f"{beta.mean():.3f} |", flush=True)
@@ -133,8 +133,9 @@ def main(argv=None) -> int:
         sd = float(np.std(plain))
         for control in CONTROLS:
             err, se = (np.array(v) for v in res[control])
-            print(f"| {label} ({over:.1%} / {under:.1%}) | {control} | {np.sqrt(np.mean(err ** 2)) / sd:.3f} | "
-                  f"{np.mean(se) / sd:.3f} | {np.mean(np.abs(err) <= 2 * se):.3f} | {err.mean() / err.std():+.3f} |",
+            print(f"| {label} ({100 * over:g} % / {100 * under:g} %) | {control} | "
+                  f"{np.sqrt(np.mean(err ** 2)) / sd:.3f} | {np.mean(se) / sd:.3f} | "
+                  f"{np.mean(np.abs(err) <= 2 * se):.3f} | {err.mean() / err.std():+.3f} |",
                   flush=True)
     print(f"{time.perf_counter() - start:.0f} s")
     return 0
