@@ -78,16 +78,25 @@ def _read_csv(path: Path) -> list[dict]:
     (("", ""), ["--set", "probes.grid=1"], "--set probes.grid", ["2 to 10", "got 1"]),
     (("", ""), ["--set", "probes.radius_mm=0"], "--set probes.radius_mm", ["0 < radius_mm", "got 0"]),
 ])
-def test_bad_probe_studies_are_one_line_before_any_work(tmp_path, edit, extra, key, fragments):
+def test_bad_probe_studies_are_one_line_before_any_work(tmp_path, capsys, edit, extra, key, fragments):
+    from latticeopt.cli import main
+
     path = _write(tmp_path, STUDY.replace(*edit) if edit[0] else STUDY)
-    done = _cli(str(path), *extra)
-    assert done.returncode == 2, done.stderr
-    assert done.stderr.count("\n") == 1 and "Traceback" not in done.stderr, done.stderr
+    code = main(["sweep", str(path), *extra])  # in-process: the same error path, without a fresh interpreter
+    err = capsys.readouterr().err
+    assert code == 2, err
+    assert err.count("\n") == 1 and "Traceback" not in err, err
     named = key if key.startswith("--set") else f"{path}: {key}:"
-    assert named in done.stderr, done.stderr
+    assert named in err, err
     for fragment in fragments:
-        assert fragment in done.stderr, done.stderr
+        assert fragment in err, err
     assert not (tmp_path / "out").exists()
+
+
+def test_a_bad_probe_study_from_the_command_line_exits_2_without_a_traceback(tmp_path):
+    done = _cli(str(_write(tmp_path, STUDY.replace("grid = 3", "grid = 11"))))
+    assert done.returncode == 2 and done.stderr.count("\n") == 1 and "Traceback" not in done.stderr, done.stderr
+    assert "probes.grid" in done.stderr
 
 
 def test_set_probes_keys_and_the_dry_run_count(tmp_path):
