@@ -213,9 +213,12 @@ def optimize_density(design, phantoms: list, mesh_settings, physics, cfg, param,
     iso_cache: dict = {}
     iso_param = param if isolation_param is None else isolation_param
 
+    def cache_key(xv: np.ndarray, beta: float) -> tuple:
+        return xv.tobytes(), beta
+
     def evaluate(xv: np.ndarray, beta: float):
         nonlocal warm
-        key = (xv.tobytes(), beta)
+        key = cache_key(xv, beta)
         if key not in cache:
             cache.clear()
             rho = ff.density(xv, beta)
@@ -249,7 +252,7 @@ def optimize_density(design, phantoms: list, mesh_settings, physics, cfg, param,
         def objective(xv, grad, beta=beta, k=k, count=count):
             # nlopt asks again for the point it is parked on: count the call (its maxeval and the resume point
             # count it) but mark it, so the history does not read as work done
-            repeat = (xv.tobytes(), beta) in cache
+            repeat = cache_key(xv, beta) in cache
             rho, ev, secs, pe = evaluate(xv, beta)
             secs = 0.0 if repeat else secs
             if grad.size:

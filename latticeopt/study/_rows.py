@@ -41,6 +41,15 @@ def _fmt(design, fields) -> str:
     return _label(design, fields) or design.describe()
 
 
+def _grid_column(study: Study, field: str) -> list | None:
+    """Each design's value of the grid field ``field`` as the study wrote it (a layout file's path, not the content
+    hash the tables show), in design order; ``None`` when the grid does not vary ``field``."""
+    if field not in study.grid_fields:
+        return None
+    k = study.grid_fields.index(field)
+    return [combo[k] for combo in itertools.product(*(values for _, values in study.grid))]
+
+
 def _names(study: Study) -> list[str]:
     """Each design's name for a figure or a ranking: its grid values as :func:`_fmt` gives them, except that a layout
     file is named by its file name rather than its content hash (by its path as written when two files share a

@@ -7,12 +7,12 @@ and responses at a glance.
 
 from __future__ import annotations
 
-import itertools
 import math
 from collections.abc import Sequence
 from pathlib import Path
 
 from ..captions import wrap_title
+from ._rows import _grid_column, _names
 from .config import Study
 
 __all__ = ["plot_layouts"]
@@ -21,16 +21,9 @@ __all__ = ["plot_layouts"]
 COLUMNS = 5
 
 
-def _layout_files(study: Study) -> list[str] | None:
-    fields = study.grid_fields
-    if "layout" not in fields:
-        return None
-    k = fields.index("layout")
-    return [str(combo[k]) for combo in itertools.product(*(values for _, values in study.grid))]
-
-
 def plot_layouts(study: Study, summary: Sequence[dict], path: Path) -> Path | None:
-    """Draw each design's hydrogel footprint (blue) and electrodes (black ticks), titled by its layout file and
+    """Draw each design's hydrogel footprint (blue) and electrodes (black ticks), titled by its layout file's name
+    (as ``probes.png`` names it, :func:`~latticeopt.study._rows._names`) and
     ``mean V_rel ± SE`` from ``summary`` (rows in ``study.designs`` order, :func:`~latticeopt.study.report.summarize`).
 
     Returns ``path``, or ``None`` when the study's grid does not vary ``layout`` (nothing to draw).
@@ -38,15 +31,14 @@ def plot_layouts(study: Study, summary: Sequence[dict], path: Path) -> Path | No
     from matplotlib.figure import Figure
     from shapely.plotting import plot_polygon
 
-    files = _layout_files(study)
-    if files is None:
+    if _grid_column(study, "layout") is None:
         return None
     n = len(study.designs)
     cols = min(COLUMNS, n)
     rows = math.ceil(n / cols)
     fig = Figure(figsize=(2.6 * cols, 2.9 * rows), layout="constrained")
     axes = fig.subplots(rows, cols, squeeze=False).ravel()
-    for ax, design, name, row in zip(axes, study.designs, files, summary):
+    for ax, design, name, row in zip(axes, study.designs, _names(study), summary):
         L = design.size_mm
         plot_polygon(design.footprint(), ax=ax, add_points=False, facecolor="tab:blue", edgecolor="navy",
                      linewidth=0.4, alpha=0.85)
@@ -58,7 +50,7 @@ def plot_layouts(study: Study, summary: Sequence[dict], path: Path) -> Path | No
         ax.set(xlim=(-2, L + 2), ylim=(-2, L + 2), aspect="equal", xticks=[], yticks=[])
         mean, se = row.get("v_rel_mean", math.nan), row.get("v_rel_se", math.nan)
         score = f"V_rel {mean:.4f} ± {se:.4f}" if math.isfinite(mean) else "not compared"
-        ax.set_title(f"{Path(name).stem}\n{score} (n = {row.get('n', 0)})", fontsize=8)
+        ax.set_title(f"{name}\n{score} (n = {row.get('n', 0)})", fontsize=8)
     for ax in axes[n:]:
         ax.set_axis_off()
     fig.suptitle(wrap_title(f"{study.name}: hydrogel (blue) and electrodes (black), t = "

@@ -27,7 +27,6 @@ of the summary and grid figures.
 from __future__ import annotations
 
 import csv
-import itertools
 import json
 import math
 from collections.abc import Sequence
@@ -35,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._rows import _by_design, _fmt, _value
+from ._rows import _by_design, _fmt, _grid_column, _value
 from .config import Study
 from .store import Evaluation
 
@@ -277,12 +276,10 @@ def write_tables_and_figures(study: Study, result_rows: Sequence[dict], summary:
 
 def _layout_legend(study: Study) -> list[str]:
     """A grid over layout files labels each design by its content hash; say which file each hash is."""
-    fields = study.grid_fields
-    if "layout" not in fields:
+    files = _grid_column(study, "layout")
+    if files is None:
         return []
-    k = fields.index("layout")
-    combos = list(itertools.product(*(values for _, values in study.grid)))
-    return [f"layout {_value(d, 'layout')} = {combo[k]}" for d, combo in zip(study.designs, combos)]
+    return [f"layout {_value(d, 'layout')} = {f}" for d, f in zip(study.designs, files)]
 
 
 def write_outputs(study: Study, evaluations: Sequence[Evaluation], out: Path) -> tuple[dict, list[str]]:
