@@ -135,6 +135,25 @@ def test_warm_start_saves_newton_steps(model, base):
     assert abs(warm.v_rel - cold.v_rel) <= 1e-7 * cold.v_rel
 
 
+def test_worker_processes_give_the_serial_presses_in_order(model, base):
+    """jobs > 1 presses each phantom in a worker process that builds its own copy of the model: the presses come
+    back in the phantoms' order, warm starts included, and equal the serial ones (the same computation)."""
+    d, ev = base
+    phantoms = [PRESS[0], [Touch(70.0, 30.0, 10.0, 1.5)], [Touch(30.0, 30.0, 9.0, 3.0), Touch(70.0, 70.0, 9.0, 1.0)]]
+    warm = [ev.presses[0].displacement_mm, None, None]
+    serial = model.evaluate(d, phantoms, warm=warm)
+    parallel = model.evaluate(d, phantoms, warm=warm, jobs=2)
+    assert len({round(p.v_rel, 6) for p in serial.presses}) == 3  # distinct presses: an order swap would show
+    for s, p in zip(serial.presses, parallel.presses):
+        assert p.warm_start == s.warm_start and p.newton_steps == s.newton_steps
+        assert p.v_rel == pytest.approx(s.v_rel, rel=1e-9)
+        np.testing.assert_allclose(p.dv_rel, s.dv_rel, rtol=1e-7, atol=1e-12 * np.abs(s.dv_rel).max())
+    np.testing.assert_allclose(parallel.reference_voltages, serial.reference_voltages, rtol=1e-12)
+    assert parallel.v_rel == pytest.approx(serial.v_rel, rel=1e-9)
+    with pytest.raises(ParameterError, match="warm"):
+        model.evaluate(d, phantoms, warm=warm[:2])
+
+
 @pytest.mark.parametrize("content, words", [
     ({"density": np.full((3, 3), 0.5)}, "4 <= n <= 400"),
     ({"density": np.full((6, 5), 0.5)}, "shape (6, 5)"),

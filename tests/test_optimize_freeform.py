@@ -216,6 +216,24 @@ def test_graded_study_writes_an_exact_layout(tmp_path, monkeypatch, capsys):
     assert bad == 2 and "graded.min_island_mm" in capsys.readouterr().err
 
 
+def test_worker_processes_follow_the_same_path(tmp_path, monkeypatch, capsys):
+    """--jobs presses each iterate's phantoms in worker processes: the same iterates as one process, and not part
+    of the run's identity (a folder made with one worker resumes with two)."""
+    monkeypatch.chdir(__import__("pathlib").Path(__file__).resolve().parents[1])
+    small = ["--set", "mesh.size_mm=8", "--set", "graded.cells=8", "--set", "graded.iterations=2",
+             "--set", "phantoms.counts={1=2,2=1}", "--quiet"]
+    one, two = tmp_path / "one", tmp_path / "two"
+    assert main(["optimize", "studies/optimize_graded.toml", "--out", str(one), *small]) == 0
+    assert main(["optimize", "studies/optimize_graded.toml", "--out", str(two), *small, "--jobs", "2"]) == 0
+    h1, h2 = ([json.loads(x) for x in (d / "history.jsonl").read_text().splitlines()] for d in (one, two))
+    assert len(h1) == len(h2) == 2
+    for a, b in zip(h1, h2):
+        assert b["v_rel"] == pytest.approx(a["v_rel"], rel=1e-9) and b["newton_steps"] == a["newton_steps"]
+    capsys.readouterr()
+    assert main(["optimize", "studies/optimize_graded.toml", "--out", str(one), *small[:-1], "--jobs", "2"]) == 0
+    assert "every stage done" in capsys.readouterr().out
+
+
 def test_a_layout_in_separate_pieces_is_flagged(tmp_path):
     """Two channels that each join two electrodes but not each other: no current flows between them in a cast
     sensor, so the report must say so rather than present the density model's reading."""

@@ -117,16 +117,22 @@ def run_optimize_command(args: argparse.Namespace) -> int:
 
 def _run_density_study(args: argparse.Namespace, raw: dict, keys: list) -> int:
     """A ``kind = "freeform"`` or ``"graded"`` study (:mod:`latticeopt.optimize.freeform`, :mod:`.graded`)."""
+    from ..errors import ParameterError
     from ..optimize.freeform import run_freeform
     from ..optimize.freeform_study import freeform_from_dict
     from ..optimize.graded import run_graded
     from ._common import check_output_path
 
+    check_parallel_args(args)
+    if args.backend != "local":
+        raise ParameterError("--backend", f"'local' for a {raw.get('kind')} study (its workers keep the model "
+                             "between iterates)", args.backend)
     study = freeform_from_dict(raw, source=str(args.study), overridden=keys)
     out = check_output_path("--out", args.out or study.out_dir, kind="dir")
     cfg = study.config
+    jobs = args.jobs or study.jobs
     if cfg.front:
-        return _run_density_front(args, study, out)
+        return _run_density_front(args, study, out, jobs)
     if args.dry_run:
         layout = (f"{cfg.cells} x {cfg.cells} cells, minimum feature {cfg.min_feature_mm:g} mm, beta "
                   f"{list(cfg.betas)} x {cfg.iterations_per_beta} iterations" if study.kind == "freeform" else
@@ -136,25 +142,25 @@ def _run_density_study(args: argparse.Namespace, raw: dict, keys: list) -> int:
             f"; probes {cfg.probe_grid} x {cfg.probe_grid}" if cfg.probes_on else "")
         print(f"{study.name} ({study.kind}): maximize mean V_rel over {len(study.phantoms)} phantoms; {layout}; "
               f"symmetry {cfg.symmetry}; gel fraction {cfg.min_hydrogel_fraction:g}..{cfg.max_hydrogel_fraction:g}"
-              f"{probes}; {cfg.algorithm}; mesh {study.mesh.size_mm:g} mm; out {out}")
+              f"{probes}; {cfg.algorithm}; mesh {study.mesh.size_mm:g} mm; {jobs} worker(s); out {out}")
         return 0
     run = run_freeform if study.kind == "freeform" else run_graded
     res = run(study.design, list(study.phantoms), study.mesh, study.physics, cfg, out,
-              progress=None if args.quiet else print)
+              progress=None if args.quiet else print, jobs=jobs)
     print(f"mean V_rel {res.v_rel:.5f}, gel fraction {res.hydrogel_fraction:.3f}, {res.evaluations} evaluations; "
           f"wrote " + ", ".join(f"{k} {v}" for k, v in res.files.items() if k != "stl")
           + (f", STL solids in {out / 'stl'}" if "stl" in res.files else ""))
     return 0
 
 
-def _run_density_front(args: argparse.Namespace, study, out) -> int:
+def _run_density_front(args: argparse.Namespace, study, out, jobs: int) -> int:
     """A density study with a ``front`` (:mod:`latticeopt.optimize.front`)."""
     from ..optimize.front import describe_front, run_front
 
     if args.dry_run:
         print("\n".join(describe_front(study, out)))
         return 0
-    res = run_front(study, out, progress=None if args.quiet else print)
+    res = run_front(study, out, progress=None if args.quiet else print, jobs=jobs)
     for row in res["points"] + res["references"]:
         print(f"{row['kind']:9s} {row['label']:16s} mean V_rel {row['v_rel']:.5f}  uniformity {row['uniformity']:.4f}"
               f"  worst/best {row['worst_to_best']:.3f}  gel {row['hydrogel_fraction']:.3f}")

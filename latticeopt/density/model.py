@@ -26,6 +26,9 @@ The force and the stretch measure take one more solve each. :class:`DensityEvalu
 
 from __future__ import annotations
 
+import contextlib
+import hashlib
+import pickle
 import time
 from dataclasses import dataclass, field
 
@@ -36,6 +39,7 @@ from ..design import LatticeDesign
 from ..electrics.forward import ForwardModel
 from ..electrics.sensitivity import weighted_sensitivities
 from ..errors import ParameterError
+from ..execution import run_tasks
 from ..mechanics.indent import IndentationSolver
 from ..mechanics.sensitivity import moduli_sensitivity, stretch_pnorm
 from ..mesh import MeshSettings
@@ -125,6 +129,9 @@ class DensityModel:
                  physics: PhysicsSettings | None = None, law: InterpolationLaw | None = None,
                  sharp_from: np.ndarray | None = None):
         t0 = time.perf_counter()
+        # what a worker process needs to build the same model (``evaluate(..., jobs > 1)``)
+        self._spec = (design, n_cells, mesh_settings, physics, law, sharp_from)
+        self._prepared: tuple = (None, None)
         self.physics = physics or PhysicsSettings()
         if self.physics.conductivity_law != "geometry":
             raise ParameterError("conductivity_law", "'geometry' for density layouts", self.physics.conductivity_law)
@@ -176,7 +183,7 @@ class DensityModel:
         return self.network.isolation(density, p)
 
     def evaluate(self, density: np.ndarray, phantoms, gradient: bool = True,
-                 warm: list[np.ndarray | None] | None = None) -> DensityEvaluation:
+                 warm: list[np.ndarray | None] | None = None, jobs: int = 1) -> DensityEvaluation:
         """``V_rel``, force and stretch of ``density`` over ``phantoms`` (lists of touches), with gradients.
 
         Parameters
@@ -189,18 +196,26 @@ class DensityModel:
         warm
             Per phantom, a displacement to start Newton from (``PressResult.displacement_mm`` of a nearby
             density), or None.
+        jobs
+            Worker processes pressing the phantoms side by side (:func:`~latticeopt.execution.run_tasks`; each
+            worker builds this model once and keeps it for later calls). Every press is the same computation
+            whichever process runs it, so the result does not depend on ``jobs``.
         """
-        rho, (mu, kappa, sigma), (dmu, dkappa, dsigma) = self.materials(density)
-        solver = self.mechanics.with_moduli(mu, kappa)
-        ref = self.electrics.with_conductivity(sigma)
-        v_ref = ref.voltages
-        w_stretch = np.zeros(self.mesh.n_tets)
-        w_stretch[self.layer_tets] = rho * self._layer_volumes
-        presses = []
-        for k, touches in enumerate(phantoms):
-            touches = [t if isinstance(t, Touch) else Touch(*t) for t in touches]
-            u0 = None if warm is None else warm[k]
-            presses.append(self._press(solver, ref, v_ref, touches, u0, w_stretch, (dmu, dkappa, dsigma), gradient))
+        phantoms = [[t if isinstance(t, Touch) else Touch(*t) for t in touches] for touches in phantoms]
+        warm = [None] * len(phantoms) if warm is None else list(warm)
+        if len(warm) != len(phantoms):
+            raise ParameterError("warm", f"one displacement (or None) per phantom ({len(phantoms)})", len(warm))
+        jobs = min(int(jobs), len(phantoms))
+        if jobs <= 1:
+            v_ref, prepared = self._prepare(density)
+            presses = [self._press(*prepared, touches, u0, gradient) for touches, u0 in zip(phantoms, warm)]
+        else:
+            presses = [None] * len(phantoms)
+            tasks = ((k, (self._spec, density, touches, u0, gradient))
+                     for k, (touches, u0) in enumerate(zip(phantoms, warm)))
+            with contextlib.closing(run_tasks(_press_in_worker, tasks, jobs=jobs)) as done:
+                for k, (press, reference) in done:
+                    presses[k], v_ref = press, reference
 
         def mean(name):
             return None if not gradient else np.mean([getattr(p, name) for p in presses], axis=0)
@@ -211,10 +226,23 @@ class DensityModel:
             dforce_ddensity=mean("dforce"), dstretch_ddensity=mean("dstretch"), presses=tuple(presses),
             reference_voltages=v_ref)
 
+    def _prepare(self, density: np.ndarray):
+        """The untouched layout of ``density``: reference voltages and what :meth:`_press` needs, kept for the
+        last density (the random phantoms and the probes of one iterate share it)."""
+        key = np.asarray(density, dtype=float).tobytes()
+        if self._prepared[0] != key:
+            rho, (mu, kappa, sigma), derivs = self.materials(density)
+            ref = self.electrics.with_conductivity(sigma)
+            w_stretch = np.zeros(self.mesh.n_tets)
+            w_stretch[self.layer_tets] = rho * self._layer_volumes
+            self._prepared = key, (ref.voltages, (self.mechanics.with_moduli(mu, kappa), ref, ref.voltages,
+                                                  w_stretch, derivs))
+        return self._prepared[1]
+
     def _to_cells(self, per_tet: np.ndarray) -> np.ndarray:
         return (self.cells.T @ per_tet).reshape(self.n, self.n)
 
-    def _press(self, solver, ref, v_ref, touches, u0, w_stretch, derivs, gradient) -> PressResult:
+    def _press(self, solver, ref, v_ref, w_stretch, derivs, touches, u0, gradient) -> PressResult:
         t0 = time.perf_counter()
         ind = solver.solve(touches, u0=u0)
         t1 = time.perf_counter()
@@ -266,3 +294,18 @@ class DensityModel:
                            dv_rel_mechanics=mechanics, dforce=dforce, dstretch=dstretch,
                            timings={"mechanics": t1 - t0, "electrics": t2 - t1, "gradient": t3 - t2,
                                     "total": t3 - t0})
+
+
+#: The model a worker process built for the last ``spec`` it was sent (``evaluate(..., jobs > 1)``).
+_WORKER_MODEL: dict = {}
+
+
+def _press_in_worker(spec: tuple, density: np.ndarray, touches: list, u0, gradient: bool):
+    """One press in a worker process: ``(PressResult, reference voltages)``."""
+    key = hashlib.sha256(pickle.dumps(spec)).hexdigest()
+    if key not in _WORKER_MODEL:
+        _WORKER_MODEL.clear()
+        _WORKER_MODEL[key] = DensityModel(*spec)
+    model = _WORKER_MODEL[key]
+    v_ref, prepared = model._prepare(density)
+    return model._press(*prepared, touches, u0, gradient), v_ref

@@ -146,7 +146,7 @@ def _write_json(path: Path, obj) -> None:
 
 
 def run_freeform(design, phantoms: list, mesh_settings, physics, cfg: FreeformConfig, out_dir,
-                 progress: Callable[[str], None] | None = print) -> FreeformResult:
+                 progress: Callable[[str], None] | None = print, jobs: int = 1) -> FreeformResult:
     """Run (or resume) a free-form optimization into ``out_dir`` (module docstring).
 
     Parameters
@@ -157,6 +157,8 @@ def run_freeform(design, phantoms: list, mesh_settings, physics, cfg: FreeformCo
         Lists of :class:`~latticeopt.touches.Touch`, one per phantom.
     mesh_settings, physics
         :class:`~latticeopt.mesh.MeshSettings` and :class:`~latticeopt.coupled.PhysicsSettings`.
+    jobs
+        Worker processes pressing the phantoms of each iterate side by side (the path does not depend on it).
     """
     from ..density.projection import FreeForm
 
@@ -165,7 +167,8 @@ def run_freeform(design, phantoms: list, mesh_settings, physics, cfg: FreeformCo
     # the bound reads the layout eroded to isolation_threshold: a bridge parked at the outline's threshold is cut
     eroded = dataclasses.replace(ff, eta=cfg.isolation_threshold)
     x, history, rho, ev = optimize_density(design, phantoms, mesh_settings, physics, cfg, ff, np.full(n, cfg.start),
-                                           np.zeros(n), np.ones(n), out_dir, progress, isolation_param=eroded)
+                                           np.zeros(n), np.ones(n), out_dir, progress, isolation_param=eroded,
+                                           jobs=jobs)
     files = write_outputs(design, rho, cfg, Path(out_dir), history, extra_lines=(
         f"free-form layout: minimum feature {cfg.min_feature_mm:g} mm, pads {cfg.pad_mm:g} mm",))
     return FreeformResult(density=rho, variables=x, v_rel=ev.v_rel, hydrogel_fraction=float(rho.mean()),
@@ -173,11 +176,13 @@ def run_freeform(design, phantoms: list, mesh_settings, physics, cfg: FreeformCo
 
 
 def optimize_density(design, phantoms: list, mesh_settings, physics, cfg, param, x0: np.ndarray, lower: np.ndarray,
-                     upper: np.ndarray, out_dir, progress: Callable[[str], None] | None = print, isolation_param=None):
+                     upper: np.ndarray, out_dir, progress: Callable[[str], None] | None = print, isolation_param=None,
+                     jobs: int = 1):
     """The resumable MMA loop over a density parametrization ``param`` (``n_variables``, ``density(x, beta)``,
     ``gradient(x, beta, d_rho)``): stages ``cfg.betas`` of ``cfg.iterations_per_beta`` iterations, the hydrogel
     fraction bounds, stretch cap and isolation bound of ``cfg`` as constraints (the last on ``isolation_param``'s
-    layout, default ``param``'s, at ``cfg.isolation_sharpness(beta)``). Returns ``(x, history, density, ev)``."""
+    layout, default ``param``'s, at ``cfg.isolation_sharpness(beta)``); ``jobs`` worker processes press the phantoms
+    and probes of each iterate. Returns ``(x, history, density, ev)``."""
     import nlopt
 
     from ..density import DensityModel
@@ -223,9 +228,9 @@ def optimize_density(design, phantoms: list, mesh_settings, physics, cfg, param,
             cache.clear()
             rho = ff.density(xv, beta)
             t0 = time.perf_counter()
-            ev = model.evaluate(rho, phantoms, warm=warm)
+            ev = model.evaluate(rho, phantoms, warm=warm, jobs=jobs)
             warm = [p.displacement_mm for p in ev.presses]
-            pe = probes.solve(model, rho) if probes else None
+            pe = probes.solve(model, rho, jobs=jobs) if probes else None
             cache[key] = (rho, ev, time.perf_counter() - t0, pe)
         return cache[key]
 

@@ -12,6 +12,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from .. import _validate as v
 from ..errors import ParameterError
 from ..study.keynames import KeyNames
 from .freeform import FreeformConfig
@@ -35,6 +36,7 @@ class FreeformStudy:
     physics: object
     config: FreeformConfig | GradedConfig
     kind: str = "freeform"
+    jobs: int = 1
 
 
 def is_density_study(raw: Mapping) -> bool:
@@ -67,6 +69,7 @@ def freeform_from_dict(raw: Mapping, source: str, overridden: Mapping[str, str] 
         tables[t] = raw.get(t, {})
         if not isinstance(tables[t], Mapping):
             raise ParameterError(name(t), "a table", tables[t])
+    jobs = v.integer(name("jobs"), raw.get("jobs", 1), lo=1, expected="an integer >= 1")
     try:
         design = design_from_table(dict(tables["design"]), str(Path(source).parent))
     except ParameterError as exc:
@@ -116,4 +119,4 @@ def freeform_from_dict(raw: Mapping, source: str, overridden: Mapping[str, str] 
     stem = Path(source).stem
     return FreeformStudy(name=str(raw.get("name", stem)), description=str(raw.get("description", "")),
                          out_dir=Path(raw.get("out", f"runs/{stem}")), design=design, phantoms=phantoms,
-                         mesh=mesh_settings, physics=physics, config=config, kind=kind)
+                         mesh=mesh_settings, physics=physics, config=config, kind=kind, jobs=jobs)

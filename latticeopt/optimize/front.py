@@ -77,8 +77,9 @@ def _finished(study, cfg, folder: Path) -> dict | None:
     return final if same and "uniformity" in final else None
 
 
-def run_front(study, out_dir, progress: Callable[[str], None] | None = print) -> dict:
-    """Run (or resume) every point of ``study.config.front`` and the references; write the table and the plot.
+def run_front(study, out_dir, progress: Callable[[str], None] | None = print, jobs: int = 1) -> dict:
+    """Run (or resume) every point of ``study.config.front`` and the references; write the table and the plot
+    (``jobs`` worker processes press the phantoms of each layout).
 
     Returns
     -------
@@ -100,14 +101,15 @@ def run_front(study, out_dir, progress: Callable[[str], None] | None = print) ->
             if progress:
                 progress(f"== front point {label} ==")
             t0 = time.perf_counter()
-            run(study.design, list(study.phantoms), study.mesh, study.physics, cfg, folder, progress=progress)
+            run(study.design, list(study.phantoms), study.mesh, study.physics, cfg, folder, progress=progress,
+                jobs=jobs)
             final = _finished(study, cfg, folder)
             if progress:
                 progress(f"point {label}: {time.perf_counter() - t0:.0f} s")
         elif progress:
             progress(f"point {label}: done before, read from {folder / 'final.json'}")
         points.append(_row("optimized", label, final, folder))
-    references = _references(study, out, progress)
+    references = _references(study, out, progress, jobs)
     files = {"table": str(_write_table(out / "front.csv", points + references)),
              "plot": str(plot_front(out / "front.png", points, references, _title(study)))}
     return {"points": points, "references": references, "files": files}
@@ -123,7 +125,7 @@ def _row(kind: str, label: str, final: dict, folder) -> dict:
             "floor_met": "" if floor is None else final["uniformity"] >= floor - FLOOR_TOL, "folder": str(folder)}
 
 
-def _references(study, out: Path, progress) -> list[dict]:
+def _references(study, out: Path, progress, jobs: int = 1) -> list[dict]:
     """Score :data:`REFERENCES` on the study's density model (resumable through ``references.json``)."""
     from ..density import DensityModel
     from ..density.field import density_of_design
@@ -146,8 +148,8 @@ def _references(study, out: Path, progress) -> list[dict]:
                 probes = ProbeGrid(study.design, cfg)
             t0 = time.perf_counter()
             rho = density_of_design(design, cfg.cells)
-            ev = model.evaluate(rho, list(study.phantoms), gradient=False)
-            pe = probes.solve(model, rho, gradient=False)
+            ev = model.evaluate(rho, list(study.phantoms), gradient=False, jobs=jobs)
+            pe = probes.solve(model, rho, gradient=False, jobs=jobs)
             stored["points"][label] = {"v_rel": ev.v_rel, "uniformity": pe.uniformity,
                                        "probe_worst_to_best": pe.worst_to_best,
                                        "hydrogel_fraction": float(rho.mean()), "probes_solved": pe.solved}

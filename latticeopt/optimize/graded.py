@@ -54,8 +54,9 @@ class GradedConfig(DensityStudyConfig):
 
 
 def run_graded(design, phantoms: list, mesh_settings, physics, cfg: GradedConfig, out_dir,
-               progress: Callable[[str], None] | None = print) -> FreeformResult:
-    """Run (or resume) a graded-lattice optimization into ``out_dir`` (module docstring)."""
+               progress: Callable[[str], None] | None = print, jobs: int = 1) -> FreeformResult:
+    """Run (or resume) a graded-lattice optimization into ``out_dir`` (module docstring); ``jobs`` worker
+    processes press the phantoms of each iterate."""
     from ..density.graded import GradedSquare
 
     param = GradedSquare(design, cfg.cells, cfg.symmetry, cfg.smoothing_mm, cfg.samples)
@@ -66,7 +67,7 @@ def run_graded(design, phantoms: list, mesh_settings, physics, cfg: GradedConfig
     n = param.n_variables
     x, history, rho, ev = optimize_density(design, phantoms, mesh_settings, physics, cfg, param,
                                            np.full(n, cfg.start_width_mm), np.full(n, cfg.min_width_mm),
-                                           np.full(n, upper_w), out_dir, progress)
+                                           np.full(n, upper_w), out_dir, progress, jobs=jobs)
     widths = param.widths(x)
     m = len(param.lines_mm)
     table = {"lines_mm": param.lines_mm.tolist(), "widths_along_y_mm": widths[:m].tolist(),

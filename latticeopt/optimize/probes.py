@@ -185,13 +185,14 @@ class ProbeGrid:
         best = np.argmin(sources, axis=0)
         return sources[best, np.arange(idx.size)], np.asarray(ops)[best]
 
-    def solve(self, model, density: np.ndarray, gradient: bool = True) -> ProbeEvaluation:
-        """Press every probe (or one per orbit) on ``density`` with ``model``; warm-started from the last call."""
+    def solve(self, model, density: np.ndarray, gradient: bool = True, jobs: int = 1) -> ProbeEvaluation:
+        """Press every probe (or one per orbit) on ``density`` with ``model`` (``jobs`` worker processes, as
+        :meth:`~latticeopt.density.DensityModel.evaluate`); warm-started from the last call."""
         t0 = time.perf_counter()
         rep, op = self.plan(self.symmetries(model, density))
         solved = sorted(set(rep.tolist()))
         ev = model.evaluate(density, [self.touches[k] for k in solved], gradient=gradient,
-                            warm=[self._warm.get(k) for k in solved])
+                            warm=[self._warm.get(k) for k in solved], jobs=jobs)
         by = dict(zip(solved, ev.presses))
         self._warm.update({k: p.displacement_mm for k, p in by.items()})
         values = np.array([by[r].v_rel for r in rep])
