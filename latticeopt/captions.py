@@ -12,11 +12,16 @@ from collections.abc import Iterable, Mapping
 
 from .design import LatticeDesign
 
-__all__ = ["layout_caption", "mesh_caption", "wrap_title"]
+__all__ = ["counted", "layout_caption", "mesh_caption", "wrap_title"]
 
 
 def _join(values: Iterable) -> str:
     return "/".join(f"{v:g}" if isinstance(v, float) else str(v) for v in dict.fromkeys(values))
+
+
+def counted(n: int, noun: str) -> str:
+    """``n`` and ``noun``, plural unless ``n == 1``: ``counted(1, "design")`` is ``"1 design"``."""
+    return f"{n} {noun}" if n == 1 else f"{n} {noun}s"
 
 
 def layout_caption(designs: Iterable[LatticeDesign], thickness: bool = True) -> str:

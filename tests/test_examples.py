@@ -26,7 +26,7 @@ def test_simulate_press(tmp_path):
 
 def test_small_sweep(tmp_path):
     out = _run("small_sweep.py", "--out", "sweep", "--mesh-size", "6", cwd=tmp_path)
-    assert "2 designs x 1 phantoms = 2 evaluations, 0 failed" in out
+    assert "2 designs x 1 phantom = 2 evaluations, 0 failed" in out
     for name in ("results.csv", "summary.csv", "report.txt"):
         assert (tmp_path / "sweep" / name).is_file()
 

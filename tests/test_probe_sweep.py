@@ -203,4 +203,4 @@ def test_coupled_model_probe_sweep_is_symmetric_resumable_and_scored_from_its_ro
     again = run_sweep(study, progress=False)  # resumed: nothing recomputed, the same report
     assert (again.computed, again.skipped) == (0, 9) and again.report == res.report
     done = _cli(str(path), "--set", one[0], "--dry-run")
-    assert done.returncode == 0 and "1 designs x 9 phantoms = 9 evaluations, 9 stored" in done.stdout, done.stdout
+    assert done.returncode == 0 and "1 design x 9 phantoms = 9 evaluations, 9 stored" in done.stdout, done.stdout

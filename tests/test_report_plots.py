@@ -123,3 +123,19 @@ def test_press_title_names_layout_thickness_mesh_and_press_and_stays_inside(tmp_
     assert "without and with the rim channel, t = 3 mm" in title
     assert "one press, r = 8.75 mm at (50, 50) mm, 9 depths" in title and "grid mesh, 2 mm" in title
     assert _inside(fig, fig.axes[0].title) and blank_border(tmp_path / "press.png")
+
+
+def test_a_sweep_loads_its_report_code_before_it_runs():
+    """Everything that writes a sweep's outputs is imported with the sweep, not after hours of work, so a run that
+    outlives an upgrade of the package writes its outputs with the code it started with (a lazily imported plot
+    module that asks an already loaded module for a new name fails with ImportError at the end). matplotlib
+    itself stays deferred to the drawing."""
+    import subprocess
+    import sys
+
+    code = ("import sys, latticeopt.study.sweep; "
+            "print(sorted(m for m in sys.modules if m.startswith('latticeopt.study.') and 'plot' in m)); "
+            "print('matplotlib' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split("\n")
+    assert out[0] == "['latticeopt.study.layout_plot', 'latticeopt.study.plots']"
+    assert out[1] == "False"

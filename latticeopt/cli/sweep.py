@@ -46,6 +46,7 @@ def register(sub) -> None:
 
 
 def run_sweep_command(args: argparse.Namespace) -> int:
+    from ..captions import counted
     from ..study.config import load_study
     from ..study.estimators import estimator_for
     from ..study.sweep import run_sweep
@@ -57,8 +58,9 @@ def run_sweep_command(args: argparse.Namespace) -> int:
     check_study_outputs(args, study)
     if args.dry_run:
         stored = _stored_counts(study)
-        print(f"{study.name} ({study.kind}): {len(study.designs)} designs x {len(study.phantoms)} phantoms = "
-              f"{study.n_tasks} evaluations, {stored[study.settings.key]} stored; model {study.settings.model}; "
+        print(f"{study.name} ({study.kind}): {counted(len(study.designs), 'design')} x "
+              f"{counted(len(study.phantoms), 'phantom')} = {counted(study.n_tasks, 'evaluation')}, "
+              f"{stored[study.settings.key]} stored; model {study.settings.model}; "
               f"mesh {study.settings.mesh.mesher} {study.settings.mesh.size_mm:g} mm; out {study.out_dir}")
         estimator = estimator_for(study)
         for line in estimator.describe(study.settings, stored):

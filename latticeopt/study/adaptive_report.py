@@ -17,6 +17,7 @@ import json
 import math
 from pathlib import Path
 
+from ..captions import counted
 from .adaptive_sweep import AdaptiveRun
 from .config import Study
 from .report import _fmt, _value, mean_se, write_tables_and_figures
@@ -106,7 +107,8 @@ def write_adaptive_outputs(study: Study, run: AdaptiveRun, out: Path) -> tuple[d
     files = write_tables_and_figures(study, _result_rows(study, run), summary, out)
     nph = len(study.phantoms)
     used = [run.n[i] for i in run.compared]
-    lines = [f"{study.name}: {len(study.designs)} designs x up to {nph} phantoms; adaptive counts: "
+    lines = [f"{study.name}: {counted(len(study.designs), 'design')} x up to {counted(nph, 'phantom')}; "
+             "adaptive counts: "
              f"{ad.min_per_design} first, then {ad.batch_size} more at a time until SE <= {ad.target_se:g} (V_rel) "
              "or every phantom is run; one common order, touch counts interleaved",
              f"phantoms per design: {min(used, default=0)}-{max(used, default=0)} of {len(run.order)}; "

@@ -27,6 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..captions import counted
+from . import plots  # at import, as in .report (matplotlib only when figures are drawn)
 from ._rows import _by_design, _names, _value
 from .config import Study
 from .phantoms import uniformity, worst_to_best
@@ -132,7 +134,6 @@ def write_probe_outputs(study: Study, evaluations: Sequence[Evaluation], out: Pa
     lines : list of str
         The text report (also in ``report.txt``), for the CLI to print.
     """
-    from . import plots  # matplotlib only when figures are drawn
 
     out = Path(out)
     grid = study.phantom_set
@@ -141,7 +142,8 @@ def write_probe_outputs(study: Study, evaluations: Sequence[Evaluation], out: Pa
              "summary": write_csv(out / "summary.csv", summary),
              "probes_plot": plots.plot_probes(study, probe_maps(study, evaluations), summary, out / "probes.png")}
     failed = sum(not e.ok for e in evaluations)
-    lines = [f"{study.name}: {len(study.designs)} designs x {grid.n_probes} probes ({grid.grid} x {grid.grid} grid, "
+    lines = [f"{study.name}: {counted(len(study.designs), 'design')} x {grid.n_probes} probes "
+             f"({grid.grid} x {grid.grid} grid, "
              f"radius {grid.radius_mm:g} mm, {grid.depth_mm:g} mm deep, at the cell centres) = {len(evaluations)} "
              f"presses, {failed} failed",
              "uniformity = 1 - std/mean of a design's probe V_rel (population std), worst-to-best = smallest / "

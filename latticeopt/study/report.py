@@ -34,8 +34,14 @@ from pathlib import Path
 
 import numpy as np
 
+from ..captions import counted
+
+# imported with the report, not when it is written: a run that outlives an upgrade of the package still writes
+# its outputs with the code it started with (both import matplotlib only when they draw)
+from . import plots
 from ._rows import _by_design, _fmt, _grid_column, _value
 from .config import Study
+from .layout_plot import plot_layouts
 from .store import Evaluation
 
 __all__ = ["best_design", "comparison_set", "mean_se", "paired_to_best", "press_curves", "press_ratios",
@@ -259,8 +265,6 @@ def _comparison_lines(study: Study, evaluations: Sequence[Evaluation]) -> tuple[
 def write_tables_and_figures(study: Study, result_rows: Sequence[dict], summary: Sequence[dict], out: Path) -> dict:
     """``results.csv``, ``summary.csv``, the V_rel line figure and (two-field grids) the heat map of a grid
     study whose rows and per-design summary an estimator has already computed; returns output name -> path."""
-    from . import plots  # matplotlib only when figures are drawn
-    from .layout_plot import plot_layouts
 
     files = {"results": write_csv(out / "results.csv", result_rows),
              "summary": write_csv(out / "summary.csv", summary),
@@ -292,14 +296,12 @@ def write_outputs(study: Study, evaluations: Sequence[Evaluation], out: Path) ->
     lines : list of str
         The text report (also in ``report.txt``), for the CLI to print.
     """
-    from . import plots  # matplotlib only when figures are drawn
-    from .layout_plot import plot_layouts
 
     out = Path(out)
     files = {"results": write_csv(out / "results.csv", results_rows(study, evaluations))}
     failed = sum(not e.ok for e in evaluations)
-    lines = [f"{study.name}: {len(study.designs)} designs x {len(study.phantoms)} phantoms = {len(evaluations)} "
-             f"evaluations, {failed} failed"]
+    lines = [f"{study.name}: {counted(len(study.designs), 'design')} x {counted(len(study.phantoms), 'phantom')} "
+             f"= {counted(len(evaluations), 'evaluation')}, {failed} failed"]
     cmp_lines, excluded_rows = _comparison_lines(study, evaluations)
     if excluded_rows:
         files["excluded"] = write_csv(out / "excluded.csv", excluded_rows)
