@@ -91,7 +91,7 @@ def main(argv=None) -> int:
     nu = len(used)
     for g, i in enumerate(chosen):
         d = study.designs[i]
-        c, f_two, strata = run.level_arrays(study, i)
+        c, f_two, strata, whole = run.level_arrays(study, i)
         f_all = np.array([plain[g * nu + k].v_rel if plain[g * nu + k].ok else np.nan for k in range(nu)])
         ok = np.isfinite(f_all)
         in_subset = np.isfinite(f_two)
@@ -100,7 +100,7 @@ def main(argv=None) -> int:
             print(f"w = {d.width_mm:g}, t = {d.thickness_mm:g}: no coarse phantom solved, nothing to compare")
             continue
         ref = multilevel_estimate(c[ok], f_all[ok], strata[ok])  # n = N: the plain fine mean and its SE
-        diff, own = gap_to_plain(c[ok], f_all[ok], strata[ok], in_subset[ok])
+        diff, own = gap_to_plain(c[ok], f_all[ok], strata[ok], in_subset[ok], whole[ok])
         sec_two = sum(run.coarse[i * len(study.phantoms) + j].seconds or 0.0 for j in used) + sum(
             run.fine[(i, j)].seconds or 0.0 for j in run.order[:run.n_fine[i]])
         sec_plain = sum(plain[g * nu + k].seconds or 0.0 for k in range(nu))

@@ -17,7 +17,7 @@ from doubles import logged_calls, record_call, run_cli
 
 from latticeopt.errors import ConvergenceError
 from latticeopt.study.config import load_study
-from latticeopt.study.multilevel import fine_order, multilevel_estimate
+from latticeopt.study.multilevel import fine_order, multilevel_estimate, take_all_mask
 from latticeopt.study.multilevel_report import model_seconds
 from latticeopt.study.settings import coarse_level_settings
 from latticeopt.study.store import ResultStore
@@ -88,12 +88,13 @@ size_mm = 2.0
 coarse = {{ size_mm = 4.0, channel_cells = 1 }}
 pilot = {pilot}
 se_factor = {factor}
+take_all = {take_all}
 """
 
 
-def _study(tmp_path: Path, pilot=6, factor=1.1, out="out", overrides=()):
+def _study(tmp_path: Path, pilot=6, factor=1.1, out="out", overrides=(), take_all=0.0):
     path = tmp_path / "study.toml"
-    path.write_text(STUDY.format(out=(tmp_path / out).as_posix(), pilot=pilot, factor=factor))
+    path.write_text(STUDY.format(out=(tmp_path / out).as_posix(), pilot=pilot, factor=factor, take_all=take_all))
     return load_study(path, overrides)
 
 
@@ -139,6 +140,32 @@ def test_estimates_match_the_statistics_and_meet_the_criterion(tmp_path, monkeyp
     again = run_sweep(_study(tmp_path), fake_two_level, progress=False)
     assert again.computed == 0 and len(logged_calls(tmp_path / "calls.log")) == len(calls)
     assert again.multilevel.estimates == ml.estimates
+
+
+def test_take_all_phantoms_come_first_for_every_design_and_enter_the_estimate(tmp_path, monkeypatch):
+    """multilevel.take_all: per touch count the phantoms whose coarse V_rel ranks highest on average over the
+    designs get the fine level first, for every design; the estimate treats them as measured, not sampled."""
+    monkeypatch.setenv(LOG_ENV, str(tmp_path / "calls.log"))
+    study = _study(tmp_path, take_all=0.25)
+    ml = run_sweep(study, fake_two_level, progress=False).multilevel
+    strata = np.array([p.n_touches for p in study.phantoms])
+    coarse = np.array([[_value(d, p, 4.0) for p in study.phantoms] for d in study.designs])
+    ranks = np.zeros(strata.size)  # each design's coarse rank within the touch count, summed
+    for c in coarse:
+        for k in (1, 2, 3):
+            idx = np.flatnonzero(strata == k)
+            ranks[idx] += np.argsort(np.argsort(c[idx]))
+    want = set(np.flatnonzero(take_all_mask(ranks, strata, 0.25)).tolist())
+    assert len(want) == 9 and set(ml.take_all) == want  # ceil(0.25 * 12) of each touch count
+    assert set(ml.order[:9]) == want
+    for i, design in enumerate(study.designs):
+        n = ml.n_fine[i]
+        assert n >= 9 + 6  # the take-all phantoms and the pilot
+        f = np.full(strata.size, np.nan)
+        f[list(ml.order[:n])] = [_fine_value(design, study.phantoms[j]) for j in ml.order[:n]]
+        mask = np.isin(np.arange(strata.size), list(want))
+        assert ml.estimates[i] == multilevel_estimate(coarse[i], f, strata, take_all=mask)
+        assert ml.estimates[i] != multilevel_estimate(coarse[i], f, strata)  # the parts change the estimate
 
 
 def test_se_factor_one_runs_every_phantom_fine_and_equals_the_plain_sweep(tmp_path):
@@ -190,7 +217,9 @@ def _cli(tmp_path: Path, *extra: str):
                                           ("multilevel.coarse_physics.gel=2", "multilevel.coarse_physics"),
                                           ("multilevel.coarse_physics=3", "multilevel.coarse_physics"),
                                           ("multilevel.coarse_electrics=both", "multilevel.coarse_electrics"),
-                                          ("multilevel.control=best", "--set multilevel.control")])
+                                          ("multilevel.control=best", "--set multilevel.control"),
+                                          ("multilevel.take_all=0.6", "--set multilevel.take_all"),
+                                          ("multilevel.take_all='all'", "--set multilevel.take_all")])
 def test_cli_bad_values_exit_2_with_one_line_naming_the_key(tmp_path, setting, key):
     _study(tmp_path)
     done = _cli(tmp_path, "--set", setting)
@@ -269,8 +298,8 @@ def test_a_fine_failure_leaves_the_phantom_out_for_every_design_at_both_levels(t
     for i, design in enumerate(study.designs):
         prefix = ml.order[:ml.n_fine[i]]
         assert bad not in prefix and all(ml.fine[(i, j)].ok for j in prefix)
-        c, f, s = ml.level_arrays(study, i)
-        want = multilevel_estimate(c, f, s)
+        c, f, s, whole = ml.level_arrays(study, i)
+        want = multilevel_estimate(c, f, s, whole)
         assert ml.estimates[i] == want and want.n_coarse == len(study.phantoms) - 1
         kept = [study.phantoms[j] for j in ml.used]
         assert c.tolist() == [_value(design, p, 4.0) for p in kept]
@@ -281,7 +310,7 @@ def test_a_fine_failure_leaves_the_phantom_out_for_every_design_at_both_levels(t
 def test_coarse_mesh_changes_only_the_keys_given_and_keeps_the_rest_of_the_fine_mesh(tmp_path):
     fine = {"mesher": "grid", "size_mm": 2.0, "channel_cells": 2, "layer_cells": 3, "electrode_edges": False}
     tail = "\n".join(f"{k} = {str(v).lower() if isinstance(v, bool) else repr(v)}" for k, v in fine.items())
-    text = STUDY.format(out=(tmp_path / "out").as_posix(), pilot=6, factor=1.1).replace(
+    text = STUDY.format(out=(tmp_path / "out").as_posix(), pilot=6, factor=1.1, take_all=0).replace(
         "[mesh]\nsize_mm = 2.0", "[mesh]\n" + tail.replace("'", '"'))
     path = tmp_path / "study.toml"
     path.write_text(text)

@@ -20,10 +20,13 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from .adaptive_report import write_adaptive_outputs
 from .adaptive_sweep import AdaptiveRun, run_adaptive
 from .config import Study
 from .engine import evaluate_designs
+from .multilevel import take_all_mask
 from .multilevel_report import write_multilevel_outputs
 from .multilevel_sweep import MultilevelRun, run_multilevel
 from .probe_report import write_probe_outputs
@@ -104,7 +107,9 @@ class TwoLevelEstimator:
     def levels(self, settings: EvalSettings) -> tuple[Level, ...]:
         study, ml = self.study, self.study.multilevel
         n = study.n_tasks
-        pilot = len(study.designs) * min(ml.pilot, len(study.phantoms))
+        strata = np.array([p.n_touches for p in study.phantoms])
+        first = int(take_all_mask(np.zeros(strata.size), strata, ml.take_all).sum()) + ml.pilot
+        pilot = len(study.designs) * min(first, len(study.phantoms))
         return (Level("coarse", coarse_level_settings(settings, ml), n, n), Level("fine", settings, pilot, n))
 
     def describe(self, settings: EvalSettings, stored: dict[str, int]) -> list[str]:
@@ -113,8 +118,9 @@ class TwoLevelEstimator:
         extra = "".join(f", {k} = {v}" for k, v in ml.coarse_physics)
         return [f"two-level: every phantom also with the mechanics on the coarse mesh {ml.coarse.size_mm:g} mm "
                 f"(electrics on the {ml.coarse_electrics} mesh{extra}; {stored_coarse} of {self.study.n_tasks} "
-                f"stored), the fine level on a pilot of {ml.pilot} and more until SE <= {ml.se_factor:g} x the "
-                f"plain fine SE (control {ml.control}; counted above: the fine level if every phantom were run)"]
+                f"stored), the fine level on the take-all share {ml.take_all:g} of each touch count and a pilot of "
+                f"{ml.pilot}, and more until SE <= {ml.se_factor:g} x the plain fine SE (control {ml.control}; "
+                "counted above: the fine level if every phantom were run)"]
 
     def run(self, settings: EvalSettings, out_dir: Path, evaluate: Callable, **executor) -> Outcome:
         ml = run_multilevel(self.study, settings, out_dir, evaluate, **executor)

@@ -55,6 +55,16 @@ one (exact for known variances and a fixed ``beta``). Choosing ``n`` from the me
 (:func:`next_fine_count`, the same ``var(G)`` as the estimate) uses only variances, not means; the bias that
 adaptive stopping can introduce is second order and checked by Monte Carlo in the tests.
 
+Take-all phantoms: ``D = F - C`` can have a rare heavy tail (deep presses on which the coarse mesh overshoots);
+a pilot of a few phantoms per stratum then misses it most of the time, the rule stops there, and the estimate is
+biased. Phantoms chosen from the coarse values alone (the largest: :func:`take_all_mask`) can all be run fine: a
+take-all part of their stratum (two-phase sampling for stratification). A stratum's estimate is then
+``beta mean_N(C) + sum_h a_h mean_{n_h}(G)`` over its parts ``h`` (shares ``a_h = N_h / N_k``; the take-all part
+with ``n_h = N_h``, exact), with variance ``var(F) / N_k + sum_h a_h^2 var_h(G) (1 / n_h - 1 / N_h)``, and
+``var(F)`` takes ``var(D)`` and ``cov(C, D)`` within the parts plus between their means, weighted as the
+``ddof = 1`` variance of the ``N_k`` values splits. The choice depends on ``C`` only and the other phantoms keep
+their value-blind order, so the estimate stays unbiased; without take-all phantoms every formula is the one above.
+
 Strata: the study's phantoms come ordered by touch count (all single touches first), so the first ``n`` of that
 sequence would be single touches only. :func:`fine_order` interleaves the strata in proportion to their sizes
 (within a stratum in sequence order), so every prefix is a nested, near-proportional sample of each stratum.
@@ -67,55 +77,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .multilevel_plan import _strata, fine_order, min_fine_count, take_all_mask
+
 __all__ = ["CONTROLS", "MultilevelEstimate", "fine_order", "gap_to_plain", "min_fine_count", "multilevel_estimate",
-           "next_fine_count", "predicted_fine_count"]
+           "next_fine_count", "predicted_fine_count", "take_all_mask"]
 
 #: The control-variate coefficient: ``"fixed"`` (``beta = 1``) or ``"fitted"`` per design (module docstring).
 CONTROLS = ("fixed", "fitted")
-
-
-def _strata(strata, size: int) -> np.ndarray:
-    s = np.zeros(size, dtype=int) if strata is None else np.asarray(strata)
-    if s.shape != (size,):
-        raise ValueError(f"strata must have shape ({size},), got {s.shape}")
-    return s
-
-
-def fine_order(strata) -> np.ndarray:
-    """The order in which phantoms get the fine level: strata interleaved in proportion to their sizes.
-
-    Parameters
-    ----------
-    strata : array_like, shape (N,)
-        Stratum label of every phantom (e.g. its touch count), in sequence order.
-
-    Returns
-    -------
-    ndarray of int, shape (N,)
-        A permutation of ``0..N-1``. Phantom ``r`` of a stratum of ``N_k`` (``r``-th in sequence order) gets the
-        key ``(r + 0.5) / N_k``; sorting by key (ties by stratum label) makes every prefix of length ``n`` hold
-        within one of ``n N_k / N`` phantoms of each stratum, the first ones of the stratum: prefixes are nested.
-    """
-    s = np.asarray(strata)
-    keys = np.empty(s.size)
-    for k in np.unique(s):
-        idx = np.flatnonzero(s == k)
-        keys[idx] = (np.arange(idx.size) + 0.5) / idx.size
-    return np.lexsort((np.arange(s.size), s, keys))
-
-
-def min_fine_count(strata, per_stratum: int = 2) -> int:
-    """Shortest prefix of :func:`fine_order` holding ``per_stratum`` phantoms of every stratum (or all of one
-    smaller than that)."""
-    s = np.asarray(strata)
-    order = fine_order(s)
-    need = {k: min(per_stratum, int(np.sum(s == k))) for k in np.unique(s)}
-    seen = dict.fromkeys(need, 0)
-    for pos, i in enumerate(order):
-        seen[s[i]] += 1
-        if all(seen[k] >= need[k] for k in need):
-            return pos + 1
-    return int(s.size)
 
 
 @dataclass(frozen=True)
@@ -165,8 +133,9 @@ class MultilevelEstimate:
         return bool(self.se <= se_factor * self.plain_fine_se)
 
 
-def _split(coarse, fine, strata):
-    """Per stratum ``(share, coarse values, fine values of the pairs, coarse values of the pairs)``."""
+def _split(coarse, fine, strata, take_all=None):
+    """Per stratum ``(share of N, coarse values, parts)``, the parts (take-all phantoms, the rest) each
+    ``(share of the stratum, coarse values, fine values of the pairs, coarse values of the pairs, take-all)``."""
     c = np.asarray(coarse, dtype=float)
     f = np.asarray(fine, dtype=float)
     if c.ndim != 1 or f.shape != c.shape:
@@ -174,52 +143,101 @@ def _split(coarse, fine, strata):
     if not np.all(np.isfinite(c)):
         raise ValueError("every phantom needs a finite coarse value")
     s = _strata(strata, c.size)
-    parts = []
+    t = np.zeros(c.size, dtype=bool) if take_all is None else np.asarray(take_all, dtype=bool)
+    if t.shape != c.shape:
+        raise ValueError(f"take_all must have shape {c.shape}, got {t.shape}")
+    strata_parts = []
     for k in np.unique(s):
-        ck, fk = c[s == k], f[s == k]
-        has = np.isfinite(fk)
-        n = int(has.sum())
-        if n < 2 and n < ck.size or n == 0:
-            raise ValueError(f"stratum {k}: {n} phantoms with both levels; at least 2 are needed (or all of it)")
-        parts.append((ck.size / c.size, ck, fk[has], ck[has]))
-    return parts
+        ck, fk, tk = c[s == k], f[s == k], t[s == k]
+        parts = []
+        for whole in (True, False):
+            sel = tk == whole
+            has = np.isfinite(fk[sel])
+            n = int(has.sum())
+            if whole and n < sel.sum():
+                raise ValueError(f"stratum {k}: every take-all phantom needs the fine level")
+            if not whole and sel.any() and (n < 2 and n < sel.sum() or n == 0):
+                raise ValueError(f"stratum {k}: {n} phantoms with both levels; at least 2 are needed (or all of it)")
+            if sel.any():
+                parts.append((sel.sum() / ck.size, ck[sel], fk[sel][has], ck[sel][has], whole))
+        strata_parts.append((ck.size / c.size, ck, parts))
+    return strata_parts
 
 
-def _fitted_beta(parts) -> tuple[float, float]:
+def _fitted_beta(strata_parts) -> tuple[float, float]:
     """The pooled coefficient and the factor on ``var(G)`` for the degree of freedom it spends (docstring)."""
     num = den = 0.0
     dof = -1
-    for w, ck, fp, cp in parts:
-        if fp.size > 1:
-            a = w * w * (1.0 / fp.size - 1.0 / ck.size)
-            num += a * float(np.cov(fp, cp)[0, 1])
-            den += a * float(np.var(cp, ddof=1))
-            dof += fp.size - 1
+    for w, _, parts in strata_parts:
+        for a, ch, fp, cp, _ in parts:
+            if fp.size > 1:
+                wt = (w * a) ** 2 * (1.0 / fp.size - 1.0 / ch.size)  # 0 for take-all parts
+                num += wt * float(np.cov(fp, cp)[0, 1])
+                den += wt * float(np.var(cp, ddof=1))
+                dof += fp.size - 1
     if dof < 1 or not den > 0:
         return 1.0, 1.0
     return num / den, (dof + 1) / dof
 
 
-def _per_stratum(coarse, fine, strata, control: str = "fixed"):
+def _var(x: np.ndarray) -> float:
+    return float(np.var(x, ddof=1)) if x.size > 1 else 0.0
+
+
+@dataclass(frozen=True)
+class _Stratum:
+    """One stratum's terms (module docstring): ``var_f`` the estimated ``var(F)`` over its phantoms, ``var_sub``
+    the variance of its sampled correction, ``var_corr`` ``sum a^2 var(G) / n`` over its parts, and the sampled
+    part's ``share``, size and ``var(G)`` (what more fine phantoms would shrink)."""
+
+    w: float
+    n_coarse: int
+    n_fine: int
+    c_mean: float
+    g_mean: float
+    var_c: float
+    var_f: float
+    var_sub: float
+    var_corr: float
+    sampled: tuple[float, int, float]
+
+
+def _per_stratum(coarse, fine, strata, control: str = "fixed", take_all=None):
     if control not in CONTROLS:
         raise ValueError(f"control must be one of {', '.join(CONTROLS)}, got {control!r}")
-    parts = _split(coarse, fine, strata)
-    beta, inflate = _fitted_beta(parts) if control == "fitted" else (1.0, 1.0)
+    strata_parts = _split(coarse, fine, strata, take_all)
+    beta, inflate = _fitted_beta(strata_parts) if control == "fitted" else (1.0, 1.0)
     rows = []
-    for w, ck, fp, cp in parts:
-        n = fp.size
-        g = fp - beta * cp  # with beta = 1 exactly F - C
-        var_g = float(np.var(g, ddof=1)) * inflate if n > 1 else 0.0
-        var_c_sub = float(np.var(cp, ddof=1)) if n > 1 else 0.0
-        # var(F) = var(C) + var(D) + 2 cov(C, D): the D terms from the n pairs, var(C) from all N phantoms. On
-        # the subset the same three terms add up to the sample var(F) exactly, so this is var_n(F) corrected by
-        # how far the subset's coarse variance is from the whole stratum's (exact when n = N)
-        var_f = float(np.var(fp, ddof=1)) + float(np.var(ck, ddof=1)) - var_c_sub if n > 1 else 0.0
-        rows.append((w, ck.size, n, float(ck.mean()), float(g.mean()), max(var_f, 0.0), var_g, var_c_sub))
+    for w, ck, parts in strata_parts:
+        d_mean = sum(a * float(np.mean(fp - cp)) for a, _, fp, cp, _ in parts)
+        # var(F) = var(C) + var(D) + 2 cov(C, D): var(C) from all N phantoms, the D terms from the pairs of each
+        # part, within the parts plus between their means, weighted as the (ddof = 1) variance of the stratum's
+        # N_k values splits (one part: the pairs' sample moments; every phantom fine: the sample moments)
+        var_d = cov_cd = 0.0
+        dof = max(ck.size - 1, 1)
+        for _, ch, fp, cp, _ in parts:
+            d = fp - cp
+            within, between = (ch.size - 1) / dof, ch.size / dof * (len(parts) > 1)
+            var_d += within * _var(d) + between * (float(d.mean()) - d_mean) ** 2
+            cov_cd += (within * (float(np.cov(cp, d)[0, 1]) if d.size > 1 else 0.0)
+                       + between * (float(ch.mean()) - float(ck.mean())) * (float(d.mean()) - d_mean))
+        var_f = _var(ck) + var_d + 2.0 * cov_cd if sum(fp.size for _, _, fp, _, _ in parts) > 1 else 0.0
+        g_mean = var_sub = var_corr = 0.0
+        sampled = (0.0, 0, 0.0)
+        for a, ch, fp, cp, whole in parts:
+            g = fp - beta * cp  # with beta = 1 exactly F - C
+            var_g = _var(g) * inflate
+            g_mean += a * float(g.mean())
+            var_sub += a * a * var_g * (1.0 / fp.size - 1.0 / ch.size)
+            var_corr += a * a * var_g / fp.size
+            if not whole:
+                sampled = (a, ch.size, var_g)
+        rows.append(_Stratum(w, ck.size, sum(fp.size for _, _, fp, _, _ in parts), float(ck.mean()), g_mean,
+                             _var(ck), max(var_f, 0.0), var_sub, var_corr, sampled))
     return rows, beta
 
 
-def multilevel_estimate(coarse, fine, strata=None, *, control: str = "fixed") -> MultilevelEstimate:
+def multilevel_estimate(coarse, fine, strata=None, take_all=None, *, control: str = "fixed") -> MultilevelEstimate:
     """The two-level estimate of the fine mean and its standard error (module docstring).
 
     Parameters
@@ -229,11 +247,13 @@ def multilevel_estimate(coarse, fine, strata=None, *, control: str = "fixed") ->
     fine : array_like, shape (N,)
         Fine-level V_rel, NaN where the phantom has no fine value. The fine phantoms must have been chosen
         independently of the values (a prefix of :func:`fine_order`), at least 2 per stratum (or the whole
-        stratum).
+        stratum), besides the take-all phantoms.
     strata : array_like, shape (N,), optional
         Stratum label per phantom (touch count); ``None``: one stratum.
     control : {"fixed", "fitted"}
         ``beta = 1`` or ``beta`` fitted from the pairs (module docstring).
+    take_all : array_like of bool, shape (N,), optional
+        Phantoms that all have the fine level, chosen from the coarse values alone (:func:`take_all_mask`).
 
     Returns
     -------
@@ -241,33 +261,37 @@ def multilevel_estimate(coarse, fine, strata=None, *, control: str = "fixed") ->
         With every phantom fine (``n = N``) ``mean`` is the plain fine mean (per stratum
         ``beta mean(C) + mean(F - beta C) = mean(F)``; exactly with ``beta = 1``) and ``se`` the plain fine SE.
     """
-    rows, beta = _per_stratum(coarse, fine, strata, control)
-    mean = coarse_mean = corr = var = var_c = var_g = var_plain = 0.0
-    for w, n_c, n_f, c_mean, g_mean, var_f, v_g, v_c in rows:
-        coarse_mean += w * c_mean
-        corr += w * (g_mean + (beta - 1.0) * c_mean)  # adds exactly 0 with beta = 1
-        # var(F)/N + var(G)(1/n - 1/N), per stratum, weights squared
-        var += w * w * (var_f / n_c + v_g * (1.0 / n_f - 1.0 / n_c))
-        var_c += w * w * v_c / n_c
-        var_g += w * w * v_g / n_f
-        var_plain += w * w * var_f / n_c
-    mean = coarse_mean + corr
-    return MultilevelEstimate(mean=mean, se=math.sqrt(max(var, 0.0)), coarse_mean=coarse_mean,
+    rows, beta = _per_stratum(coarse, fine, strata, control, take_all)
+    coarse_mean = corr = var = var_c = var_g = var_plain = 0.0
+    for r in rows:
+        coarse_mean += r.w * r.c_mean
+        corr += r.w * (r.g_mean + (beta - 1.0) * r.c_mean)  # adds exactly 0 with beta = 1
+        # var(F)/N + the sampled correction's variance, per stratum, weights squared
+        var += r.w * r.w * (r.var_f / r.n_coarse + r.var_sub)
+        var_c += r.w * r.w * r.var_c / r.n_coarse
+        var_g += r.w * r.w * r.var_corr
+        var_plain += r.w * r.w * r.var_f / r.n_coarse
+    return MultilevelEstimate(mean=coarse_mean + corr, se=math.sqrt(max(var, 0.0)), coarse_mean=coarse_mean,
                               coarse_se=math.sqrt(var_c), correction_mean=corr, correction_se=math.sqrt(var_g),
-                              n_fine=sum(r[2] for r in rows), n_coarse=sum(r[1] for r in rows),
+                              n_fine=sum(r.n_fine for r in rows), n_coarse=sum(r.n_coarse for r in rows),
                               plain_fine_se=math.sqrt(var_plain), beta=beta)
 
 
-def predicted_fine_count(coarse, fine, strata=None, *, se_factor: float = 1.1, control: str = "fixed") -> float:
-    """Fine phantoms needed for ``se <= se_factor * plain_fine_se``, from the variances measured so far.
+def predicted_fine_count(coarse, fine, strata=None, *, se_factor: float = 1.1, control: str = "fixed",
+                         take_all=None) -> float:
+    """Sampled fine phantoms needed for ``se <= se_factor * plain_fine_se``, from the variances measured so far.
 
-    With proportional allocation (``n_k = w_k n``) ``Var(mu) = A + B / n`` with ``B = sum_k w_k var_k(G)``
-    (``var(G)`` as :func:`multilevel_estimate` uses it, with the current ``beta``); solving
-    ``A + B / n = se_factor^2 var_plain`` gives ``n = B / ((se_factor^2 - 1) var_plain + B / N)``, at most ``N``.
+    Over the ``M`` phantoms that are not take-all, sampled in proportion to the strata (``m_k = m M_k / M``), the
+    sampled corrections add ``sum_k u_k^2 var_k(G) (1 / m_k - 1 / M_k) = S (M / m - 1)`` to ``var_plain``, with
+    ``u_k`` a stratum's sampled share of all ``N`` phantoms and ``S = sum_k u_k^2 var_k(G) / M_k`` (``var(G)`` as
+    :func:`multilevel_estimate` uses it, with the current ``beta``). Solving ``var_plain + S (M / m - 1) =
+    se_factor^2 var_plain`` gives ``m = M S / (S + (se_factor^2 - 1) var_plain)``, at most ``M``; without
+    take-all phantoms ``M = N`` and this is ``n = B / ((se_factor^2 - 1) var_plain + B / N)``,
+    ``B = sum_k w_k var_k(G)``.
 
     Parameters
     ----------
-    coarse, fine, strata, control
+    coarse, fine, strata, control, take_all
         As in :func:`multilevel_estimate`.
     se_factor : float
         Allowed ratio of the two-level SE to the plain fine SE, >= 1.
@@ -275,57 +299,67 @@ def predicted_fine_count(coarse, fine, strata=None, *, se_factor: float = 1.1, c
     Returns
     -------
     float
-        The predicted ``n`` (not rounded), in ``[0, N]``.
+        The predicted ``m`` (not rounded), in ``[0, M]``: fine phantoms besides the take-all ones.
     """
     if not se_factor >= 1:
         raise ValueError(f"se_factor must be >= 1, got {se_factor}")
-    rows, _ = _per_stratum(coarse, fine, strata, control)
-    n_total = sum(r[1] for r in rows)
-    b = sum(w * v_g for w, _, _, _, _, _, v_g, _ in rows)
-    var_plain = sum(w * w * var_f / n_c for w, n_c, _, _, _, var_f, _, _ in rows)
-    denom = (se_factor ** 2 - 1.0) * var_plain + b / n_total
-    return float(n_total) if denom <= 0 else min(float(n_total), b / denom)
+    rows, _ = _per_stratum(coarse, fine, strata, control, take_all)
+    m_total = sum(r.sampled[1] for r in rows)
+    s_term = sum((r.w * a) ** 2 * var_g / size for r in rows for a, size, var_g in [r.sampled] if size)
+    var_plain = sum(r.w * r.w * r.var_f / r.n_coarse for r in rows)
+    denom = s_term + (se_factor ** 2 - 1.0) * var_plain
+    return float(m_total) if denom <= 0 else min(float(m_total), m_total * s_term / denom)
 
 
-def next_fine_count(coarse, fine, strata, n: int, *, pilot: int, se_factor: float, control: str = "fixed") -> int:
-    """How many phantoms (a prefix of :func:`fine_order`) should have the fine level next.
+def next_fine_count(coarse, fine, strata, n: int, *, pilot: int, se_factor: float, control: str = "fixed",
+                    take_all=None, order=None) -> int:
+    """How many sampled phantoms (a prefix of ``order``) should have the fine level next, besides the take-all
+    ones.
 
     Parameters
     ----------
     coarse : array_like, shape (N,)
         Coarse V_rel of every phantom.
     fine : array_like, shape (N,)
-        Fine V_rel of the first ``n`` phantoms of :func:`fine_order` (``strata``), NaN elsewhere.
+        Fine V_rel of the take-all phantoms and the first ``n`` of ``order``, NaN elsewhere.
     strata : array_like, shape (N,) or None
         Stratum label per phantom.
     n : int
         The current prefix length (0 before the pilot).
     pilot : int
-        First prefix length; raised to :func:`min_fine_count` so every stratum has two fine phantoms.
+        First prefix length; raised so every stratum has two sampled fine phantoms.
     se_factor : float
         The criterion ``se <= se_factor * plain_fine_se``.
     control : {"fixed", "fitted"}
         The estimate's ``beta`` (:func:`multilevel_estimate`); the criterion and the prediction use its variance.
+    take_all : array_like of bool, shape (N,), optional
+        The take-all phantoms (:func:`take_all_mask`), all with the fine level.
+    order : array_like of int, optional
+        Positions of the other phantoms in the order they get the fine level; default :func:`fine_order` of
+        their strata.
 
     Returns
     -------
     int
-        ``n`` itself when the criterion holds or ``n = N`` (done); otherwise a larger prefix: the predicted
+        ``n`` itself when the criterion holds or ``n = M`` (done); otherwise a larger prefix: the predicted
         count (:func:`predicted_fine_count`), at least ``n + max(1, n // 4)`` and at most ``2 n`` per step,
-        so a noisy variance estimate from few phantoms cannot jump to ``N`` at once.
+        so a noisy variance estimate from few phantoms cannot jump to ``M`` at once.
     """
     c = np.asarray(coarse, dtype=float)
     s = _strata(strata, c.size)
-    start = min(c.size, max(int(pilot), min_fine_count(s)))
+    rest = np.flatnonzero(~np.asarray(take_all, dtype=bool)) if take_all is not None else np.arange(c.size)
+    order = rest[fine_order(s[rest])] if order is None else np.asarray(order, dtype=int)
+    m_total = order.size
+    start = min(m_total, max(int(pilot), min_fine_count(s[order], order=np.arange(m_total))))
     if n < start:
         return start
-    if n >= c.size or multilevel_estimate(c, fine, s, control=control).meets(se_factor):
-        return int(min(n, c.size))
-    want = math.ceil(predicted_fine_count(c, fine, s, se_factor=se_factor, control=control))
-    return int(min(c.size, max(n + max(1, n // 4), min(2 * n, want))))
+    if n >= m_total or multilevel_estimate(c, fine, s, control=control, take_all=take_all).meets(se_factor):
+        return int(min(n, m_total))
+    want = math.ceil(predicted_fine_count(c, fine, s, se_factor=se_factor, control=control, take_all=take_all))
+    return int(min(m_total, max(n + max(1, n // 4), min(2 * n, want))))
 
 
-def gap_to_plain(coarse, fine, strata, subset) -> tuple[float, float]:
+def gap_to_plain(coarse, fine, strata, subset, take_all=None) -> tuple[float, float]:
     """How far the two-level estimate on ``subset`` lies from the plain fine mean, and the SE of that gap.
 
     For validating the estimator when every phantom has been run fine as well. Over common phantoms the gap is
@@ -343,6 +377,8 @@ def gap_to_plain(coarse, fine, strata, subset) -> tuple[float, float]:
         Stratum label per phantom.
     subset : array_like of bool, shape (N,)
         The phantoms the two-level estimate has fine.
+    take_all : array_like of bool, shape (N,), optional
+        Its take-all phantoms (fine in the estimate whatever ``subset`` says; no sampling error).
 
     Returns
     -------
@@ -355,12 +391,13 @@ def gap_to_plain(coarse, fine, strata, subset) -> tuple[float, float]:
     if f.shape != c.shape or sub.shape != c.shape or not np.all(np.isfinite(f)):
         raise ValueError("coarse, fine and subset must have one shape, with every fine value finite")
     s = _strata(strata, c.size)
-    part = multilevel_estimate(c, np.where(sub, f, np.nan), s).mean
+    t = np.zeros(c.size, dtype=bool) if take_all is None else np.asarray(take_all, dtype=bool)
+    part = multilevel_estimate(c, np.where(sub | t, f, np.nan), s, take_all=t).mean
     full = multilevel_estimate(c, f, s).mean
     d = f - c
     var = 0.0
     for k in np.unique(s):
-        sel = s == k
+        sel = (s == k) & ~t  # the take-all phantoms are all in, and add nothing
         big, n = int(sel.sum()), int((sel & sub).sum())
         if big > 1:
             var += (big / c.size) ** 2 * float(np.var(d[sel], ddof=1)) * (1.0 / n - 1.0 / big)

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..captions import counted
 from .config import Study
 from .multilevel import multilevel_estimate
 from .multilevel_sweep import MultilevelRun
@@ -71,7 +72,7 @@ def paired_difference(study: Study, run: MultilevelRun, a: int, b: int):
     for j in run.order[:m]:
         f[pos[j]] = run.fine[(a, j)].v_rel - run.fine[(b, j)].v_rel
     strata = np.array([study.phantoms[j].n_touches for j in run.used])
-    return multilevel_estimate(c, f, strata, control=study.multilevel.control)
+    return multilevel_estimate(c, f, strata, control=study.multilevel.control, take_all=run.take_all_mask())
 
 
 def model_seconds(study: Study, run: MultilevelRun) -> dict[str, float]:
@@ -81,18 +82,20 @@ def model_seconds(study: Study, run: MultilevelRun) -> dict[str, float]:
     -------
     dict
         ``coarse`` and ``fine``: seconds of every stored evaluation of the level (failures included);
-        ``two_level``: their sum; ``plain``: per design with fine phantoms, the mean seconds of its fine
-        evaluations times its number of phantoms, summed (the fine subset is a sample of every touch count, so
-        its mean cost is that of all phantoms).
+        ``two_level``: their sum; ``plain``: per design with fine phantoms, the seconds of its take-all
+        phantoms plus the mean seconds of its other fine evaluations times the other phantoms, summed (those are
+        a sample of every touch count, so their mean cost is that of the phantoms not taken whole).
     """
     nph = len(study.phantoms)
     coarse = sum(e.seconds or 0.0 for e in run.coarse)
     fine = sum(e.seconds or 0.0 for e in run.fine.values())
     plain = 0.0
+    whole = set(run.take_all)
     for i in range(len(study.designs)):
-        own = [e.seconds or 0.0 for (d, _), e in run.fine.items() if d == i]
-        if own:
-            plain += nph * float(np.mean(own))
+        own = [e.seconds or 0.0 for (d, j), e in run.fine.items() if d == i and j not in whole]
+        taken = [e.seconds or 0.0 for (d, j), e in run.fine.items() if d == i and j in whole]
+        if own or taken:
+            plain += sum(taken) + (nph - len(taken)) * float(np.mean(own) if own else np.mean(taken))
     return {"coarse": coarse, "fine": fine, "two_level": coarse + fine, "plain": plain}
 
 
@@ -151,10 +154,13 @@ def write_multilevel_outputs(study: Study, run: MultilevelRun, out: Path) -> tup
     nph = len(study.phantoms)
     c, f = ml.coarse, run.fine_settings.mesh
     extra = "".join(f", {k} = {v}" for k, v in ml.coarse_physics)
-    lines = [f"{study.name}: {len(study.designs)} designs x {nph} phantoms; two-level estimator: coarse mesh "
+    lines = [f"{study.name}: {counted(len(study.designs), 'design')} x {counted(nph, 'phantom')}; "
+             "two-level estimator: coarse mesh "
              f"{c.size_mm:g} mm ({c.channel_cells} channel cells, electrics on the {ml.coarse_electrics} mesh{extra}) "
              f"on every phantom, fine mesh {f.size_mm:g} mm "
-             f"on a nested subset until SE <= {ml.se_factor:g} x the estimated plain fine SE (pilot {ml.pilot}); "
+             f"on the take-all phantoms ({len(run.take_all)}: the share {ml.take_all:g} of each touch count with the "
+             f"highest coarse V_rel) and a nested subset of the others until SE <= {ml.se_factor:g} x the "
+             f"estimated plain fine SE (pilot {ml.pilot}); "
              + ("control fixed: beta = 1 (coarse mean plus the mean fine-minus-coarse correction)"
                 if ml.control == "fixed" else "control fitted: beta = cov(F, C) / var(C) per design, pooled over "
                 "the touch counts' fine phantoms"),

@@ -6,10 +6,11 @@ store. Steps:
 1. Every design x phantom at the coarse level (:func:`~latticeopt.study.settings.coarse_level_settings`: the
    mechanics on ``multilevel.coarse``, the electrics on the fine mesh or, with ``coarse_electrics = "coarse"``,
    on the coarse one; the ``[physics]`` keys of ``multilevel.coarse_physics`` changed).
-2. The phantoms every compared design solved at the coarse level, ordered by
-   :func:`~latticeopt.study.multilevel.fine_order` (touch counts interleaved): the fine subset of a design is a
-   prefix of that one order, so it is nested and common to all designs.
-3. A pilot prefix on the fine mesh (the study's own settings), then, per design, longer prefixes
+2. The phantoms every compared design solved at the coarse level: first the take-all ones (``multilevel.take_all``
+   of each touch count, those whose coarse V_rel ranks highest on average over the compared designs), then the
+   others ordered by :func:`~latticeopt.study.multilevel.fine_order` (touch counts interleaved): the fine subset
+   of a design is a prefix of that one order, so it is nested and common to all designs.
+3. The take-all phantoms and a pilot on the fine mesh (the study's own settings), then, per design, longer prefixes
    (:func:`~latticeopt.study.multilevel.next_fine_count`) until the two-level SE is within ``se_factor`` of the
    estimated plain fine SE or every phantom is fine (the SE of the estimate with ``multilevel.control``'s
    coefficient). Designs asking for the same prefix are evaluated together.
@@ -33,7 +34,7 @@ import numpy as np
 
 from .config import Study
 from .engine import evaluate_designs, run_prefixes
-from .multilevel import MultilevelEstimate, fine_order, multilevel_estimate, next_fine_count
+from .multilevel import MultilevelEstimate, fine_order, multilevel_estimate, next_fine_count, take_all_mask
 from .settings import EvalSettings, coarse_level_settings
 from .store import Evaluation
 
@@ -57,7 +58,9 @@ class MultilevelRun:
     used
         Phantom positions every compared design solved (both levels where run), in sequence order.
     order
-        ``used`` in fine order: design ``i``'s fine subset is ``order[:n_fine[i]]``.
+        ``used`` in fine order, the take-all phantoms first: design ``i``'s fine subset is ``order[:n_fine[i]]``.
+    take_all
+        The take-all phantoms (positions in the study's phantoms), the first ``len(take_all)`` of :attr:`order`.
     n_fine
         Prefix length per design (0 for a design not compared).
     estimates
@@ -74,16 +77,22 @@ class MultilevelRun:
     fine: dict
     used: tuple[int, ...]
     order: tuple[int, ...]
+    take_all: tuple[int, ...]
     n_fine: tuple[int, ...]
     estimates: tuple[MultilevelEstimate | None, ...]
     compared: tuple[int, ...]
     computed_coarse: int
     computed_fine: int
 
-    def level_arrays(self, study: Study, design: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(coarse, fine, strata)`` over :attr:`used` for one design; fine is NaN outside its prefix."""
-        return _arrays(study, self.coarse, self.fine, list(self.used), list(self.order), design,
-                       self.n_fine[design])
+    def level_arrays(self, study: Study, design: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``(coarse, fine, strata, take_all)`` over :attr:`used` for one design; fine is NaN outside its prefix,
+        take_all marks the take-all phantoms."""
+        return (*_arrays(study, self.coarse, self.fine, list(self.used), list(self.order), design,
+                         self.n_fine[design]), self.take_all_mask())
+
+    def take_all_mask(self) -> np.ndarray:
+        """:attr:`take_all` as a mask over :attr:`used`."""
+        return np.isin(np.array(self.used, dtype=int), np.array(self.take_all, dtype=int))
 
 
 def _arrays(study, coarse, fine, used, order, i, n):
@@ -95,6 +104,21 @@ def _arrays(study, coarse, fine, used, order, i, n):
         f[pos[j]] = fine[(i, j)].v_rel
     strata = np.array([study.phantoms[j].n_touches for j in used])
     return c, f, strata
+
+
+def _take_all(study, coarse, used, compared, strata, share) -> np.ndarray:
+    """The take-all phantoms over ``used``: per touch count the ``share`` whose coarse V_rel ranks highest, on
+    average over the compared designs (ranks, not values: designs respond on different scales)."""
+    if not used or share <= 0:
+        return np.zeros(len(used), dtype=bool)
+    nph = len(study.phantoms)
+    ranks = np.zeros(len(used))
+    for i in compared:
+        c = np.array([coarse[i * nph + j].v_rel for j in used])
+        for k in np.unique(strata):
+            sel = np.flatnonzero(strata == k)
+            ranks[sel] += np.argsort(np.argsort(c[sel], kind="stable"), kind="stable")
+    return take_all_mask(ranks, strata, share)
 
 
 def run_multilevel(study: Study, settings: EvalSettings, out_dir, evaluate: Callable, *, jobs: int = 1,
@@ -126,7 +150,10 @@ def run_multilevel(study: Study, settings: EvalSettings, out_dir, evaluate: Call
         used = [j for j in range(nph)
                 if all(coarse[i * nph + j].ok and (fine[(i, j)].ok if (i, j) in fine else True) for i in compared)]
         strata = np.array([study.phantoms[j].n_touches for j in used])
-        order = [used[k] for k in fine_order(strata)] if used else []
+        tail = _take_all(study, coarse, used, compared, strata, ml.take_all)
+        rest = np.flatnonzero(~tail)
+        order = [used[k] for k in np.flatnonzero(tail)] + [used[k] for k in rest[fine_order(strata[rest])]]
+        n_tail = int(tail.sum())
         want: dict[int, int] = {}
         for i in compared:
             if not used:
@@ -136,7 +163,11 @@ def run_multilevel(study: Study, settings: EvalSettings, out_dir, evaluate: Call
                 want[i] = n[i]
                 continue
             c, f, s = _arrays(study, coarse, fine, used, order, i, n[i])
-            nxt = next_fine_count(c, f, s, n[i], pilot=ml.pilot, se_factor=ml.se_factor, control=ml.control)
+            pos = {j: k for k, j in enumerate(used)}
+            sampled = max(n[i] - n_tail, 0)
+            nxt = n_tail + next_fine_count(c, f, s, sampled, pilot=ml.pilot, se_factor=ml.se_factor,
+                                           control=ml.control, take_all=tail,
+                                           order=[pos[j] for j in order[n_tail:]])
             if nxt != n[i]:
                 want[i] = nxt
         if not want:
@@ -148,8 +179,9 @@ def run_multilevel(study: Study, settings: EvalSettings, out_dir, evaluate: Call
     for i in compared:
         if used and n[i]:
             estimates[i] = multilevel_estimate(*_arrays(study, coarse, fine, used, order, i, n[i]),
-                                               control=ml.control)
+                                               control=ml.control, take_all=tail)
     return MultilevelRun(coarse_settings=coarse_settings, fine_settings=settings, coarse=coarse, fine=fine,
-                         used=tuple(used), order=tuple(order), n_fine=tuple(n.get(i, 0) for i in range(nd)),
+                         used=tuple(used), order=tuple(order), take_all=tuple(order[:n_tail]),
+                         n_fine=tuple(n.get(i, 0) for i in range(nd)),
                          estimates=tuple(estimates), compared=tuple(compared), computed_coarse=computed_coarse,
                          computed_fine=computed_fine)

@@ -189,6 +189,13 @@ class MultilevelSettings:
         ``"fitted"`` (per design, ``cov(F, C) / var(C)`` pooled over the touch counts' pairs;
         :mod:`latticeopt.study.multilevel`). Not part of any results-store key: it changes which fine phantoms
         a design asks for, not any phantom's value.
+    take_all
+        Share of each touch count's phantoms that always get the fine level, in ``[0, 0.5]``: those whose coarse
+        V_rel ranks highest on average over the compared designs (the deep presses, where a coarse mesh errs
+        most). They are measured instead of sampled, so a rare heavy tail of the fine-minus-coarse correction
+        cannot hide from the pilot; the estimate stays unbiased (a stratum chosen from the coarse values alone,
+        :mod:`latticeopt.study.multilevel`). Default 0.05 (``benchmarks/multilevel_control.py``); 0 samples
+        every phantom. Not part of any results-store key.
     """
 
     coarse: MeshSettings = field(default_factory=lambda: MeshSettings(size_mm=4.0, channel_cells=1))
@@ -197,6 +204,7 @@ class MultilevelSettings:
     pilot: int = 15
     se_factor: float = 1.1
     control: str = "fixed"
+    take_all: float = 0.05
 
     def __post_init__(self) -> None:
         if not isinstance(self.coarse, MeshSettings):
@@ -217,6 +225,8 @@ class MultilevelSettings:
             raise ParameterError("se_factor", "a number >= 1 (allowed SE over the plain fine SE)", self.se_factor)
         object.__setattr__(self, "se_factor", float(self.se_factor))
         object.__setattr__(self, "control", v.choice("control", self.control, CONTROLS))
+        object.__setattr__(self, "take_all", v.real("take_all", self.take_all, lo=0.0, hi=0.5,
+                                                    expected="a share 0 <= take_all <= 0.5 of each touch count"))
 
 
 # -- adaptive phantom counts (target_se and friends in [phantoms]) -------------------------------------------
