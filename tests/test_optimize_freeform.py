@@ -114,6 +114,26 @@ def test_freeform_run_resumes_after_a_crash_and_writes_a_castable_layout(tmp_pat
     assert "choose another --out" in capsys.readouterr().err
 
 
+def test_stages_appended_to_betas_continue_a_finished_run(tmp_path, monkeypatch, capsys):
+    """A run whose layout is still grey can be sharpened further: the same study with stages appended to betas
+    resumes from the last iterate (no stage run again); any other change of betas is refused."""
+    monkeypatch.chdir(__import__("pathlib").Path(__file__).resolve().parents[1])
+    out = tmp_path / "run"
+    argv = ["optimize", "studies/optimize_freeform.toml", "--out", str(out), *SMALL,
+            "--set", "freeform.iterations_per_beta=1"]
+    assert main(argv) == 0
+    first = (out / "history.jsonl").read_text().splitlines()
+    assert [json.loads(x)["beta"] for x in first] == [1, 4]
+    capsys.readouterr()
+    assert main([*argv, "--set", "freeform.betas=[1, 4, 16]"]) == 0
+    assert "extending the continuation" in capsys.readouterr().out
+    history = (out / "history.jsonl").read_text().splitlines()
+    assert history[:2] == first and [json.loads(x)["beta"] for x in history[2:]] == [16]
+    assert json.loads((out / "state.json").read_text())["stage"] == 3
+    assert main([*argv, "--set", "freeform.betas=[2, 4, 16, 32]"]) == 2  # not an extension of [1, 4, 16]
+    assert "stages appended to betas" in capsys.readouterr().err
+
+
 class ParkedOptimizer:
     """An nlopt.opt stand-in that asks for the start twice and then once more for the same point, as MMA does
     when parked on its bounds."""

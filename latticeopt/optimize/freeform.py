@@ -198,9 +198,14 @@ def optimize_density(design, phantoms: list, mesh_settings, physics, cfg, param,
     history = []
     if state_path.exists():
         state = json.loads(state_path.read_text())
-        if not same_run(state.get("identity"), identity):
+        extended = extends_run(state.get("identity"), identity)
+        if not (extended or same_run(state.get("identity"), identity)):
             raise ParameterError("out", "an output folder of this same study (its settings differ from "
-                                 "the stored state.json; choose another --out)", str(out))
+                                 "the stored state.json other than by stages appended to betas; choose "
+                                 "another --out)", str(out))
+        if extended and progress:
+            progress(f"extending the continuation of {out}: betas {state['identity']['config']['betas']} -> "
+                     f"{list(cfg.betas)}")
         x, stage, done = np.asarray(state["x"], dtype=float), int(state["stage"]), int(state["iterations"])
         history = [json.loads(line) for line in hist_path.read_text().splitlines()] if hist_path.exists() else []
         if progress:
@@ -353,6 +358,18 @@ def run_identity(design, phantoms: list, mesh_settings, physics, cfg) -> dict:
     return json.loads(json.dumps({
         "config": config, "design": design.as_dict(), "mesh": mesh_settings.as_dict(),
         "physics": physics.as_dict(), "phantoms": [[t.as_dict() for t in p] for p in phantoms]}))
+
+
+def extends_run(stored: dict | None, identity: dict) -> bool:
+    """Whether ``identity`` is a stored run with stages appended to its ``betas`` and nothing else changed: the
+    run resumes from its last iterate into the new stages (a layout still grey at the end of its continuation
+    goes on sharpening instead of starting over)."""
+    if not isinstance(stored, dict) or not isinstance(stored.get("config"), dict):
+        return False
+    old, new = list(stored["config"].get("betas", [])), list(identity["config"]["betas"])
+    if not 0 < len(old) < len(new) or new[:len(old)] != old:
+        return False
+    return same_run({**stored, "config": {**stored["config"], "betas": new}}, identity)
 
 
 def same_run(stored: dict | None, identity: dict) -> bool:
