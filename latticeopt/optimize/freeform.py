@@ -98,7 +98,7 @@ class FreeformConfig(DensityStudyConfig):
     min_feature_mm: float = 4.0
     pad_mm: float = 4.0
     start: float = 0.5
-    betas: tuple = (1.0, 2.0, 4.0, 8.0, 16.0)
+    betas: tuple = (1.0, 2.0, 4.0, 8.0, 16.0, 32.0, 64.0, 128.0)
     iterations_per_beta: int = 10
     threshold: float = 0.5
     smooth_mm: float = 0.5
@@ -366,7 +366,7 @@ def extends_run(stored: dict | None, identity: dict) -> bool:
     goes on sharpening instead of starting over)."""
     if not isinstance(stored, dict) or not isinstance(stored.get("config"), dict):
         return False
-    old, new = list(stored["config"].get("betas", [])), list(identity["config"]["betas"])
+    old, new = list(stored["config"].get("betas", [])), list(identity["config"].get("betas", []))
     if not 0 < len(old) < len(new) or new[:len(old)] != old:
         return False
     return same_run({**stored, "config": {**stored["config"], "betas": new}}, identity)
