@@ -65,9 +65,7 @@ with ``n_h = N_h``, exact), with variance ``var(F) / N_k + sum_h a_h^2 var_h(G) 
 ``ddof = 1`` variance of the ``N_k`` values splits. The choice depends on ``C`` only and the other phantoms keep
 their value-blind order, so the estimate stays unbiased; without take-all phantoms every formula is the one above.
 
-Strata: the study's phantoms come ordered by touch count (all single touches first), so the first ``n`` of that
-sequence would be single touches only. :func:`fine_order` interleaves the strata in proportion to their sizes
-(within a stratum in sequence order), so every prefix is a nested, near-proportional sample of each stratum.
+Which phantoms get the fine level, in what order, and the take-all choice: :mod:`.multilevel_plan`.
 """
 
 from __future__ import annotations

@@ -1,7 +1,9 @@
 """The sampling plan of the two-level estimator: which phantoms get the fine level, and in what order.
 
-:func:`fine_order` interleaves the strata (touch counts) so every prefix is a nested, near-proportional sample of
-each; :func:`take_all_mask` picks the phantoms that get the fine level whatever the pilot says, from the coarse
+The study's phantoms come ordered by touch count (all single touches first), so the first ``n`` of that sequence
+would be single touches only. :func:`fine_order` interleaves the strata (touch counts) in proportion to their
+sizes (within a stratum in sequence order), so every prefix is a nested, near-proportional sample of each
+stratum; :func:`take_all_mask` picks the phantoms that get the fine level whatever the pilot says, from the coarse
 values alone (:mod:`latticeopt.study.multilevel` has the estimate and the stopping rule).
 """
 
