@@ -88,10 +88,13 @@ def test_other_settings_do_not_count_as_measured(tmp_path):
 
 
 def test_two_level_is_a_range_from_the_pilot_to_every_phantom(tmp_path):
-    study = _study(tmp_path, size=2.0, extra="[multilevel]\npilot = 2\ncoarse = { size_mm = 4.0 }")
+    study = _study(tmp_path, size=2.0, extra="[multilevel]\npilot = 2\ntake_all = 0\ncoarse = { size_mm = 4.0 }")
     coarse, fine = est_levels = _estimate(study).levels
     assert [lv.name for lv in est_levels] == ["coarse", "fine"]
     assert coarse.to_run == (8, 8) and coarse.mesh_mm == 4.0 and fine.to_run == (2 * 2, 8)
+    # the take-all phantoms come on top of the pilot: ceil(0.05 x 2) = 1 of each of the two touch counts
+    with_take_all = _study(tmp_path, size=2.0, extra="[multilevel]\npilot = 2\ncoarse = { size_mm = 4.0 }")
+    assert _estimate(with_take_all).levels[1].to_run == (2 * (2 + 2), 8)
     est = _estimate(study)
     assert est.least_s == (8 * coarse.seconds + 4 * fine.seconds) / 2
     assert est.most_s == (8 * coarse.seconds + 8 * fine.seconds) / 2
