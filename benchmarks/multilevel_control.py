@@ -30,9 +30,9 @@ import sys
 import time
 
 import numpy as np
-from multilevel_pilot import MEANS, STRATA, _draw
+from multilevel_pilot import MEANS, STRATA, _draw, run_rule
 
-from latticeopt.study.multilevel import CONTROLS, fine_order, multilevel_estimate, next_fine_count
+from latticeopt.study.multilevel import CONTROLS, fine_order, multilevel_estimate
 
 #: (label, fraction of phantoms whose coarse value overshoots, fraction that undershoots)
 SEVERITIES = (("none", 0.0, 0.0), ("mild", 0.005, 0.0025), ("moderate", 0.01, 0.005), ("paper w = 2", 0.02, 0.01),
@@ -51,18 +51,6 @@ def draw(rng, over: float, under: float):
     c = np.where(big & (u < over_p), 3.0 * f, c)
     c = np.where(big & (u >= over_p) & (u < over_p + under_p), 0.5 * f, c)
     return c, f
-
-
-def run(c, f, pilot: int, se_factor: float, control: str):
-    """The sweep's stopping rule from the pilot to its end: ``(n, estimate)``."""
-    n = 0
-    while True:
-        fine = np.full(f.shape, np.nan)
-        fine[ORDER[:n]] = f[ORDER[:n]]
-        nxt = next_fine_count(c, fine, STRATA, n, pilot=pilot, se_factor=se_factor, control=control)
-        if nxt == n:
-            return n, multilevel_estimate(c, fine, STRATA, control=control)
-        n = nxt
 
 
 def main(argv=None) -> int:
@@ -104,7 +92,7 @@ def main(argv=None) -> int:
             ratio.append(np.var(d) / np.var(f))
             plain.append(multilevel_estimate(c, f, STRATA).mean - truth)
             for control in CONTROLS:
-                n, e = run(c, f, a.pilot, a.se_factor, control)
+                n, e = run_rule(c, f, a.pilot, a.se_factor, control)
                 for lst, v in zip(res[control], (n, e.mean - truth, e.se, e.beta)):
                     lst.append(v)
         sd = float(np.std(plain))

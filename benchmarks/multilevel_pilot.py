@@ -19,7 +19,7 @@ import sys
 
 import numpy as np
 
-from latticeopt.study.multilevel import fine_order, multilevel_estimate, next_fine_count
+from latticeopt.study.multilevel import fine_order, multilevel_estimate, next_fine_count, take_all_mask
 
 STRATA = np.repeat([1, 2, 3], 100)
 MEANS = np.array([0.03, 0.06, 0.09])
@@ -33,15 +33,22 @@ def _draw(rng, noise: float):
     return c, f
 
 
-def _run(c, f, pilot: int, se_factor: float):
-    order = fine_order(STRATA)
+def run_rule(c, f, pilot: int, se_factor: float, control: str = "fixed", share: float = 0.0):
+    """The sweep's stopping rule from the pilot to its end on one map whose fine values ``f`` are all known: the
+    take-all phantoms (``share`` of each touch count, :func:`~latticeopt.study.multilevel.take_all_mask` of ``c``)
+    first, then the others in :func:`~latticeopt.study.multilevel.fine_order`. Returns ``(fine phantoms in all,
+    estimate)``; shared by the pilot, control and take-all benchmarks."""
+    whole = take_all_mask(c, STRATA, share)
+    rest = np.flatnonzero(~whole)
+    order = rest[fine_order(STRATA[rest])]
     n = 0
     while True:
-        fine = np.full(f.shape, np.nan)
+        fine = np.where(whole, f, np.nan)
         fine[order[:n]] = f[order[:n]]
-        nxt = next_fine_count(c, fine, STRATA, n, pilot=pilot, se_factor=se_factor)
+        nxt = next_fine_count(c, fine, STRATA, n, pilot=pilot, se_factor=se_factor, control=control,
+                              take_all=whole, order=order)
         if nxt == n:
-            return n, multilevel_estimate(c, fine, STRATA)
+            return n + int(whole.sum()), multilevel_estimate(c, fine, STRATA, whole, control=control)
         n = nxt
 
 
@@ -69,7 +76,7 @@ def main(argv=None) -> int:
             err, se, ns, plain = [], [], [], []
             for _ in range(a.replicates):
                 c, f = _draw(rng, noise)
-                n, e = _run(c, f, pilot, 1.1)
+                n, e = run_rule(c, f, pilot, 1.1)
                 err.append(e.mean - truth)
                 se.append(e.se)
                 ns.append(n)

@@ -23,24 +23,9 @@ import time
 
 import numpy as np
 from multilevel_control import SEVERITIES, draw
-from multilevel_pilot import MEANS, STRATA
+from multilevel_pilot import MEANS, STRATA, run_rule
 
-from latticeopt.study.multilevel import fine_order, multilevel_estimate, next_fine_count, take_all_mask
-
-
-def run(c, f, share: float, pilot: int, se_factor: float):
-    """The stopping rule with the take-all share: ``(fine phantoms in all, estimate)``."""
-    whole = take_all_mask(c, STRATA, share)
-    rest = np.flatnonzero(~whole)
-    order = rest[fine_order(STRATA[rest])]
-    n = 0
-    while True:
-        fine = np.where(whole, f, np.nan)
-        fine[order[:n]] = f[order[:n]]
-        nxt = next_fine_count(c, fine, STRATA, n, pilot=pilot, se_factor=se_factor, take_all=whole, order=order)
-        if nxt == n:
-            return n + int(whole.sum()), multilevel_estimate(c, fine, STRATA, whole)
-        n = nxt
+from latticeopt.study.multilevel import multilevel_estimate
 
 
 def main(argv=None) -> int:
@@ -73,7 +58,7 @@ def main(argv=None) -> int:
             c, f = draw(rng, over, under)
             plain.append(multilevel_estimate(c, f, STRATA).mean - truth)
             for s in a.shares:
-                n, e = run(c, f, s, a.pilot, a.se_factor)
+                n, e = run_rule(c, f, a.pilot, a.se_factor, share=s)
                 for lst, v in zip(res[s], (n, e.mean - truth, e.se)):
                     lst.append(v)
         sd = float(np.std(plain))
