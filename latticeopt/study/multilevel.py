@@ -219,7 +219,8 @@ def _per_stratum(coarse, fine, strata, control: str = "fixed", take_all=None):
             var_d += within * _var(d) + between * (float(d.mean()) - d_mean) ** 2
             cov_cd += (within * (float(np.cov(cp, d)[0, 1]) if d.size > 1 else 0.0)
                        + between * (float(ch.mean()) - float(ck.mean())) * (float(d.mean()) - d_mean))
-        var_f = _var(ck) + var_d + 2.0 * cov_cd if sum(fp.size for _, _, fp, _, _ in parts) > 1 else 0.0
+        n_pairs = sum(fp.size for _, _, fp, _, _ in parts)
+        var_f = _var(ck) + var_d + 2.0 * cov_cd if n_pairs > 1 else 0.0
         g_mean = var_sub = var_corr = 0.0
         sampled = (0.0, 0, 0.0)
         for a, ch, fp, cp, whole in parts:
@@ -230,7 +231,7 @@ def _per_stratum(coarse, fine, strata, control: str = "fixed", take_all=None):
             var_corr += a * a * var_g / fp.size
             if not whole:
                 sampled = (a, ch.size, var_g)
-        rows.append(_Stratum(w, ck.size, sum(fp.size for _, _, fp, _, _ in parts), float(ck.mean()), g_mean,
+        rows.append(_Stratum(w, ck.size, n_pairs, float(ck.mean()), g_mean,
                              _var(ck), max(var_f, 0.0), var_sub, var_corr, sampled))
     return rows, beta
 

@@ -152,7 +152,8 @@ def run_multilevel(study: Study, settings: EvalSettings, out_dir, evaluate: Call
         strata = np.array([study.phantoms[j].n_touches for j in used])
         tail = _take_all(study, coarse, used, compared, strata, ml.take_all)
         rest = np.flatnonzero(~tail)
-        order = [used[k] for k in np.flatnonzero(tail)] + [used[k] for k in rest[fine_order(strata[rest])]]
+        sampled_order = rest[fine_order(strata[rest])]  # positions in ``used`` of the phantoms not taken whole
+        order = [used[k] for k in np.flatnonzero(tail)] + [used[k] for k in sampled_order]
         n_tail = int(tail.sum())
         want: dict[int, int] = {}
         for i in compared:
@@ -163,11 +164,9 @@ def run_multilevel(study: Study, settings: EvalSettings, out_dir, evaluate: Call
                 want[i] = n[i]
                 continue
             c, f, s = _arrays(study, coarse, fine, used, order, i, n[i])
-            pos = {j: k for k, j in enumerate(used)}
             sampled = max(n[i] - n_tail, 0)
             nxt = n_tail + next_fine_count(c, f, s, sampled, pilot=ml.pilot, se_factor=ml.se_factor,
-                                           control=ml.control, take_all=tail,
-                                           order=[pos[j] for j in order[n_tail:]])
+                                           control=ml.control, take_all=tail, order=sampled_order)
             if nxt != n[i]:
                 want[i] = nxt
         if not want:

@@ -265,7 +265,6 @@ def _comparison_lines(study: Study, evaluations: Sequence[Evaluation]) -> tuple[
 def write_tables_and_figures(study: Study, result_rows: Sequence[dict], summary: Sequence[dict], out: Path) -> dict:
     """``results.csv``, ``summary.csv``, the V_rel line figure and (two-field grids) the heat map of a grid
     study whose rows and per-design summary an estimator has already computed; returns output name -> path."""
-
     files = {"results": write_csv(out / "results.csv", result_rows),
              "summary": write_csv(out / "summary.csv", summary),
              "lines_plot": plots.plot_lines(study, summary, out / "vrel_lines.png")}
@@ -296,7 +295,6 @@ def write_outputs(study: Study, evaluations: Sequence[Evaluation], out: Path) ->
     lines : list of str
         The text report (also in ``report.txt``), for the CLI to print.
     """
-
     out = Path(out)
     files = {"results": write_csv(out / "results.csv", results_rows(study, evaluations))}
     failed = sum(not e.ok for e in evaluations)
