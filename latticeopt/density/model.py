@@ -31,6 +31,7 @@ import hashlib
 import pickle
 import time
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
@@ -100,6 +101,16 @@ class DensityEvaluation:
                              "newton_steps": p.newton_steps, "warm_start": p.warm_start, "timings": p.timings,
                              "counts": p.counts}
                             for p in self.presses]}
+
+
+class _Reference(NamedTuple):
+    """The untouched layout of one density, shared by its presses."""
+
+    solver: IndentationSolver  # with this density's moduli
+    ref: ForwardModel  # the electrics on the undeformed mesh
+    v_ref: np.ndarray  # its voltages (V), shape (n_rows,)
+    w_stretch: np.ndarray  # per-tet weights of the stretch measure, shape (n_tets,)
+    derivs: tuple  # d(mu, kappa, sigma)/d(rho) per layer tet
 
 
 class DensityModel:
@@ -207,8 +218,9 @@ class DensityModel:
             raise ParameterError("warm", f"one displacement (or None) per phantom ({len(phantoms)})", len(warm))
         jobs = min(int(jobs), len(phantoms))
         if jobs <= 1:
-            v_ref, prepared = self._prepare(density)
-            presses = [self._press(*prepared, touches, u0, gradient) for touches, u0 in zip(phantoms, warm)]
+            prepared = self._prepare(density)
+            v_ref = prepared.v_ref
+            presses = [self._press(prepared, touches, u0, gradient) for touches, u0 in zip(phantoms, warm)]
         else:
             presses = [None] * len(phantoms)
             tasks = ((k, (self._spec, density, touches, u0, gradient))
@@ -226,23 +238,24 @@ class DensityModel:
             dforce_ddensity=mean("dforce"), dstretch_ddensity=mean("dstretch"), presses=tuple(presses),
             reference_voltages=v_ref)
 
-    def _prepare(self, density: np.ndarray):
-        """The untouched layout of ``density``: reference voltages and what :meth:`_press` needs, kept for the
-        last density (the random phantoms and the probes of one iterate share it)."""
+    def _prepare(self, density: np.ndarray) -> _Reference:
+        """The untouched layout of ``density`` (what :meth:`_press` needs), kept for the last density: the random
+        phantoms and the probes of one iterate share it."""
         key = np.asarray(density, dtype=float).tobytes()
         if self._prepared[0] != key:
             rho, (mu, kappa, sigma), derivs = self.materials(density)
             ref = self.electrics.with_conductivity(sigma)
             w_stretch = np.zeros(self.mesh.n_tets)
             w_stretch[self.layer_tets] = rho * self._layer_volumes
-            self._prepared = key, (ref.voltages, (self.mechanics.with_moduli(mu, kappa), ref, ref.voltages,
-                                                  w_stretch, derivs))
+            self._prepared = key, _Reference(self.mechanics.with_moduli(mu, kappa), ref, ref.voltages, w_stretch,
+                                             derivs)
         return self._prepared[1]
 
     def _to_cells(self, per_tet: np.ndarray) -> np.ndarray:
         return (self.cells.T @ per_tet).reshape(self.n, self.n)
 
-    def _press(self, solver, ref, v_ref, w_stretch, derivs, touches, u0, gradient) -> PressResult:
+    def _press(self, prepared: _Reference, touches, u0, gradient) -> PressResult:
+        solver, ref, v_ref, w_stretch, derivs = prepared
         t0 = time.perf_counter()
         ind = solver.solve(touches, u0=u0)
         t1 = time.perf_counter()
@@ -307,5 +320,5 @@ def _press_in_worker(spec: tuple, density: np.ndarray, touches: list, u0, gradie
         _WORKER_MODEL.clear()
         _WORKER_MODEL[key] = DensityModel(*spec)
     model = _WORKER_MODEL[key]
-    v_ref, prepared = model._prepare(density)
-    return model._press(*prepared, touches, u0, gradient), v_ref
+    prepared = model._prepare(density)
+    return model._press(prepared, touches, u0, gradient), prepared.v_ref
