@@ -285,7 +285,8 @@ class CoupledModel:
         Mesh cache folder (see :func:`latticeopt.mesh.mesh_design`).
     mechanics_mesh
         Mesher settings of a separate mechanics mesh (module docstring); None (default): the mechanics runs on
-        the electrics mesh.
+        the electrics mesh. It is not checked against the design's narrowest feature (no warning): it is
+        meant to be coarse.
     """
 
     def __init__(self, design: LatticeDesign, mesh_settings: MeshSettings | None = None,
@@ -298,7 +299,9 @@ class CoupledModel:
             raise ParameterError("mechanics_mesh", "a MeshSettings or None", mechanics_mesh)
         self.mesh = mesh_design(design, mesh_settings, cache_dir=cache_dir)
         separate = mechanics_mesh is not None and mechanics_mesh.identity() != mesh_settings.identity()
-        self.mechanics_mesh = mesh_design(design, mechanics_mesh, cache_dir=cache_dir) if separate else self.mesh
+        # a separate mechanics mesh is coarse on purpose (the two-level sweep's coarse level): no mesh warning
+        self.mechanics_mesh = (mesh_design(design, mechanics_mesh, cache_dir=cache_dir, warn=False) if separate
+                               else self.mesh)
         indent = self.physics.indent_settings()
         self.mechanics = IndentationSolver(self.mechanics_mesh, indent)
         self._electrics = _Electrics(self.mesh, self.physics, indent.volumetric, mesh_settings, design)

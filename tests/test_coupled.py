@@ -171,6 +171,20 @@ def test_coarse_mechanics_moves_the_fine_hydrogel_by_the_interpolated_displaceme
     assert np.allclose(hybrid.reference.with_nodes(moved).voltages, h.voltages, rtol=0, atol=1e-12)
 
 
+def test_a_coarse_mechanics_mesh_is_not_warned_about_but_a_coarse_electrics_mesh_is(tmp_path, caplog, monkeypatch):
+    import latticeopt.mesh as mesh_module
+
+    monkeypatch.setattr(mesh_module, "_WARNED_COARSE", set())
+    design = LatticeDesign(width_mm=4, thickness_mm=3)
+    fine, coarse = dataclasses.replace(COARSE, size_mm=4.0), dataclasses.replace(COARSE, size_mm=8.0)
+    with caplog.at_level("WARNING", logger="latticeopt.mesh"):
+        CoupledModel(design, fine, cache_dir=tmp_path, mechanics_mesh=coarse)  # the two-level coarse level
+        assert not caplog.records
+        CoupledModel(design, coarse, cache_dir=tmp_path)  # V_rel read on the 8 mm mesh: said
+    record, = caplog.records
+    assert "size_mm = 8 mm" in record.message and "channel width w = 4 mm" in record.message
+
+
 def test_a_folded_interpolation_falls_back_to_the_mechanics_mesh_and_says_so(tmp_path, monkeypatch):
     from latticeopt import coupled
     from latticeopt.errors import MeshError

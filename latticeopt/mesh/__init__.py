@@ -208,7 +208,7 @@ def _warn_if_coarser_than_features(design: LatticeDesign, settings: MeshSettings
 
 
 def mesh_design(design: LatticeDesign, settings: MeshSettings | None = None,
-                cache_dir: str | Path | None | bool = None) -> TetMesh:
+                cache_dir: str | Path | None | bool = None, warn: bool = True) -> TetMesh:
     """Mesh ``design`` (or read it from the cache).
 
     Parameters
@@ -221,6 +221,9 @@ def mesh_design(design: LatticeDesign, settings: MeshSettings | None = None,
         ``size_mm`` coarser than :func:`narrowest_feature_mm` is logged as a warning (once per process).
     cache_dir
         Folder of the cache; ``None`` uses :func:`default_cache_dir`, ``False`` disables caching.
+    warn
+        Log that warning. False for a mesh that is coarse on purpose (a two-level sweep's coarse mechanics,
+        whose error the fine level measures).
 
     Returns
     -------
@@ -228,7 +231,8 @@ def mesh_design(design: LatticeDesign, settings: MeshSettings | None = None,
         ``info`` holds the (resolved) mesher, settings, key, build seconds and whether it came from the cache.
     """
     settings = (settings or MeshSettings()).resolved(design)
-    _warn_if_coarser_than_features(design, settings)  # every mesh (the CLI, studies, exports) is made here
+    if warn:  # every mesh (the CLI, studies, exports) is made here
+        _warn_if_coarser_than_features(design, settings)
     if settings.mesher == "grid":  # before any work (a cache look-up included)
         from .grid import require_axis_aligned
 
