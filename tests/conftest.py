@@ -1,9 +1,16 @@
 """Fixtures shared by the mechanics tests."""
 
-import pytest
+import os
 
-from latticeopt import LatticeDesign, MeshSettings, mesh_design
-from latticeopt.mechanics import IndentationSolver, IndentSettings
+# the suite runs in one process per core (pytest-xdist, ``-n auto`` in pyproject.toml): one BLAS/MKL thread each,
+# set before numpy or MKL is loaded in the process
+for _var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import pytest  # noqa: E402
+
+from latticeopt import LatticeDesign, MeshSettings, mesh_design  # noqa: E402
+from latticeopt.mechanics import IndentationSolver, IndentSettings  # noqa: E402
 
 #: A 50 mm sensor with the default lattice (w = 4, t = 3) on a 2.5 mm grid: small enough for many solves.
 STACK_DESIGN = LatticeDesign(size_mm=50.0, width_mm=4.0, thickness_mm=3.0)
