@@ -11,6 +11,7 @@ from latticeopt.cli import main
 from latticeopt.density.outline import density_outline
 from latticeopt.density.projection import FreeForm
 from latticeopt.layout import read_geojson
+from latticeopt.optimize.graded import GradedConfig
 
 DESIGN = LatticeDesign(thickness_mm=3.0)
 
@@ -234,6 +235,18 @@ def test_graded_study_writes_an_exact_layout(tmp_path, monkeypatch, capsys):
     bad = main(["optimize", "studies/optimize_graded.toml", "--out", str(tmp_path / "b"), "--set",
                 "graded.min_island_mm=12"])
     assert bad == 2 and "graded.min_island_mm" in capsys.readouterr().err
+
+
+def test_a_minimum_channel_narrower_than_two_density_elements_is_warned(caplog):
+    from latticeopt.optimize.graded import warn_if_unresolved
+
+    with caplog.at_level("WARNING", logger="latticeopt.optimize.graded"):
+        assert not warn_if_unresolved(GradedConfig(min_width_mm=4.0), 2.0)  # two 2 mm elements: resolved
+        assert not caplog.records
+        assert warn_if_unresolved(GradedConfig(min_width_mm=1.0), 2.0)
+    record, = caplog.records
+    assert "graded.min_width_mm = 1 mm" in record.message and "2 mm density mesh" in record.message
+    assert "mesh.size_mm <= 0.5" in record.message
 
 
 def test_worker_processes_follow_the_same_path(tmp_path, monkeypatch, capsys):
