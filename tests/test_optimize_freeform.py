@@ -6,12 +6,11 @@ import json
 import numpy as np
 import pytest
 
-from latticeopt import LatticeDesign
+from latticeopt import LatticeDesign, MeshSettings
 from latticeopt.cli import main
 from latticeopt.density.outline import density_outline
 from latticeopt.density.projection import FreeForm
 from latticeopt.layout import read_geojson
-from latticeopt.optimize.graded import GradedConfig
 
 DESIGN = LatticeDesign(thickness_mm=3.0)
 
@@ -238,12 +237,13 @@ def test_graded_study_writes_an_exact_layout(tmp_path, monkeypatch, capsys):
 
 
 def test_a_minimum_channel_narrower_than_two_density_elements_is_warned(caplog):
-    from latticeopt.optimize.graded import warn_if_unresolved
+    from latticeopt.optimize.freeform import warn_if_unresolved
 
-    with caplog.at_level("WARNING", logger="latticeopt.optimize.graded"):
-        assert not warn_if_unresolved(GradedConfig(min_width_mm=4.0), 2.0)  # two 2 mm elements: resolved
+    with caplog.at_level("WARNING", logger="latticeopt.optimize.freeform"):
+        assert not warn_if_unresolved("graded.min_width_mm", 4.0, None)  # two elements of the default 2 mm mesh
+        assert not warn_if_unresolved("freeform.min_feature_mm", 2.0, MeshSettings(size_mm=1.0))
         assert not caplog.records
-        assert warn_if_unresolved(GradedConfig(min_width_mm=1.0), 2.0)
+        assert warn_if_unresolved("graded.min_width_mm", 1.0, MeshSettings(size_mm=2.0))
     record, = caplog.records
     assert "graded.min_width_mm = 1 mm" in record.message and "2 mm density mesh" in record.message
     assert "mesh.size_mm <= 0.5" in record.message

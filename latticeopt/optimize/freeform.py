@@ -145,6 +145,22 @@ def _write_json(path: Path, obj) -> None:
     write_atomic(path, lambda fh: fh.write(json.dumps(obj).encode()))
 
 
+def warn_if_unresolved(key: str, width_mm: float, mesh_settings) -> bool:
+    """Log a warning (and return True) when the narrowest channel a study allows (``key``, ``width_mm``) spans
+    fewer than two elements of the density model's mesh: the model under-reads such a channel's response, most
+    near the electrodes (the w = 1 mm square lattice's corner probe: 0.18 on the 2 mm mesh, 0.39 on its exact
+    mesh; ``docs/gradients.md``)."""
+    from ..mesh import MeshSettings
+
+    size_mm = (mesh_settings or MeshSettings()).size_mm
+    if width_mm >= 2.0 * size_mm:
+        return False
+    log.warning("%s = %g mm is narrower than two elements of the %g mm density mesh: the density model under-reads "
+                "such channels (docs/gradients.md, accuracy of a density model); score the outline on its exact mesh "
+                "(latticeopt sweep with design.layout), or mesh.size_mm <= %g", key, width_mm, size_mm, width_mm / 2)
+    return True
+
+
 def run_freeform(design, phantoms: list, mesh_settings, physics, cfg: FreeformConfig, out_dir,
                  progress: Callable[[str], None] | None = print, jobs: int = 1) -> FreeformResult:
     """Run (or resume) a free-form optimization into ``out_dir`` (module docstring).
@@ -163,6 +179,7 @@ def run_freeform(design, phantoms: list, mesh_settings, physics, cfg: FreeformCo
     from ..density.projection import FreeForm
 
     ff = FreeForm(design, cfg.cells, cfg.symmetry, cfg.min_feature_mm, cfg.pad_mm)
+    warn_if_unresolved("freeform.min_feature_mm", cfg.min_feature_mm, mesh_settings)
     n = ff.n_variables
     # the bound reads the layout eroded to isolation_threshold: a bridge parked at the outline's threshold is cut
     eroded = dataclasses.replace(ff, eta=cfg.isolation_threshold)

@@ -11,7 +11,6 @@ exact (the union of the channel rectangles), so the grid mesher meshes it exactl
 from __future__ import annotations
 
 import json
-import logging
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -21,11 +20,8 @@ import numpy as np
 
 from .. import _validate as v
 from ..errors import ParameterError
-from ..mesh import MeshSettings
-from .freeform import DensityStudyConfig, FreeformResult, optimize_density
+from .freeform import DensityStudyConfig, FreeformResult, optimize_density, warn_if_unresolved
 from .layout_outputs import write_outputs
-
-log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -57,19 +53,6 @@ class GradedConfig(DensityStudyConfig):
         set_(self, "iterations", v.integer("graded.iterations", self.iterations, lo=1, hi=1000))
 
 
-def warn_if_unresolved(cfg: GradedConfig, mesh_size_mm: float) -> bool:
-    """Log a warning (and return True) when the narrowest channel allowed spans fewer than two elements of the
-    density model's mesh: the model under-reads such a channel's response, most near the electrodes (the w = 1 mm
-    square lattice's corner probe: 0.18 on the 2 mm mesh, 0.39 on its exact mesh; ``docs/gradients.md``)."""
-    if cfg.min_width_mm >= 2.0 * mesh_size_mm:
-        return False
-    log.warning("graded.min_width_mm = %g mm is narrower than two elements of the %g mm density mesh: the density "
-                "model under-reads such channels (docs/gradients.md, accuracy of a density model); score the outline "
-                "on its exact mesh (latticeopt sweep with design.layout), or mesh.size_mm <= %g",
-                cfg.min_width_mm, mesh_size_mm, cfg.min_width_mm / 2.0)
-    return True
-
-
 def run_graded(design, phantoms: list, mesh_settings, physics, cfg: GradedConfig, out_dir,
                progress: Callable[[str], None] | None = print, jobs: int = 1) -> FreeformResult:
     """Run (or resume) a graded-lattice optimization into ``out_dir`` (module docstring); ``jobs`` worker
@@ -77,7 +60,7 @@ def run_graded(design, phantoms: list, mesh_settings, physics, cfg: GradedConfig
     from ..density.graded import GradedSquare
 
     param = GradedSquare(design, cfg.cells, cfg.symmetry, cfg.smoothing_mm, cfg.samples)
-    warn_if_unresolved(cfg, (mesh_settings or MeshSettings()).size_mm)
+    warn_if_unresolved("graded.min_width_mm", cfg.min_width_mm, mesh_settings)
     upper_w = design.pitch_mm - cfg.min_island_mm
     if upper_w < max(cfg.min_width_mm, cfg.start_width_mm):
         raise ParameterError("graded.min_island_mm", f"room for a channel of at least start_width_mm "
