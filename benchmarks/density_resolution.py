@@ -21,18 +21,14 @@ import time
 for _var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
-from latticeopt import LatticeDesign, MeshSettings  # noqa: E402
+from latticeopt import MeshSettings  # noqa: E402
 from latticeopt.density import DensityModel  # noqa: E402
 from latticeopt.density.field import InterpolationLaw, density_of_design  # noqa: E402
-from latticeopt.layout import read_layout  # noqa: E402
+from latticeopt.design import design_from_table  # noqa: E402
 from latticeopt.optimize.graded import GradedConfig  # noqa: E402
 from latticeopt.optimize.probes import ProbeGrid  # noqa: E402
 
 LAYOUTS = ["studies/data/square_w1.geojson", "studies/data/square_w4.geojson", "studies/data/graded_d4_t3.geojson"]
-
-
-def _design(path: str) -> LatticeDesign:
-    return LatticeDesign(thickness_mm=3.0, pattern="custom", custom_polygons_mm=read_layout(path))
 
 
 def main(argv=None) -> None:
@@ -49,7 +45,7 @@ def main(argv=None) -> None:
     cfg = GradedConfig(cells=args.cells, probes=True)
     print("layout | p | uniformity | worst-to-best | mean | probes | solved | s")
     for path in args.layout or LAYOUTS:
-        design = _design(path)
+        design = design_from_table({"thickness_mm": 3.0, "layout": path})
         rho = density_of_design(design, args.cells)
         for p in laws:
             model = DensityModel(design, args.cells, MeshSettings(size_mm=args.mesh),
