@@ -103,8 +103,18 @@ def test_freeform_run_resumes_after_a_crash_and_writes_a_castable_layout(tmp_pat
     assert main(["mesh", "--layout", str(out / "layout.geojson"), "--thickness", "3", "--size", "8", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["region_volumes_mm3"]["hydrogel"] > 0
     # the outline keys shape only the written layout: a finished run re-outlined without smoothing writes the
-    # cell staircase (every edge axis-aligned, what the grid mesher meshes exactly) and computes no new iterate
+    # cell staircase (every edge axis-aligned, what the grid mesher meshes exactly) and computes no new iterate,
+    # not even the final layout again: its V_rel comes from final.json (no density model is built)
+    import latticeopt.density as density
+
+    def no_model(*a, **k):
+        raise AssertionError("a finished run built a density model")
+
+    monkeypatch.setattr(density, "DensityModel", no_model)
+    capsys.readouterr()
     assert main([*argv, "--set", "freeform.smooth_mm=0"]) == 0
+    assert f"final layout read from {out / 'final.json'} (mean V_rel {final['v_rel']:.5f})" in capsys.readouterr().out
+    assert f"final layout: mean V_rel {final['v_rel']:.5f}" in (out / "report.txt").read_text()
     assert len((out / "history.jsonl").read_text().splitlines()) == 4
     ring = json.loads((out / "layout.geojson").read_text())["features"][0]["geometry"]["coordinates"][0]
     assert all(a[0] == b[0] or a[1] == b[1] for a, b in zip(ring, ring[1:]))

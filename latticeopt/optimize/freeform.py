@@ -183,12 +183,12 @@ def run_freeform(design, phantoms: list, mesh_settings, physics, cfg: FreeformCo
     n = ff.n_variables
     # the bound reads the layout eroded to isolation_threshold: a bridge parked at the outline's threshold is cut
     eroded = dataclasses.replace(ff, eta=cfg.isolation_threshold)
-    x, history, rho, ev = optimize_density(design, phantoms, mesh_settings, physics, cfg, ff, np.full(n, cfg.start),
+    x, history, rho, v_rel = optimize_density(design, phantoms, mesh_settings, physics, cfg, ff, np.full(n, cfg.start),
                                            np.zeros(n), np.ones(n), out_dir, progress, isolation_param=eroded,
                                            jobs=jobs)
     files = write_outputs(design, rho, cfg, Path(out_dir), history, extra_lines=(
         f"free-form layout: minimum feature {cfg.min_feature_mm:g} mm, pads {cfg.pad_mm:g} mm",))
-    return FreeformResult(density=rho, variables=x, v_rel=ev.v_rel, hydrogel_fraction=float(rho.mean()),
+    return FreeformResult(density=rho, variables=x, v_rel=v_rel, hydrogel_fraction=float(rho.mean()),
                           evaluations=len(history), history=history, files=files)
 
 
@@ -199,7 +199,8 @@ def optimize_density(design, phantoms: list, mesh_settings, physics, cfg, param,
     ``gradient(x, beta, d_rho)``): stages ``cfg.betas`` of ``cfg.iterations_per_beta`` iterations, the hydrogel
     fraction bounds, stretch cap and isolation bound of ``cfg`` as constraints (the last on ``isolation_param``'s
     layout, default ``param``'s, at ``cfg.isolation_sharpness(beta)``); ``jobs`` worker processes press the phantoms
-    and probes of each iterate. Returns ``(x, history, density, ev)``."""
+    and probes of each iterate. Returns ``(x, history, density, v_rel)``, the last two of the final layout (read
+    from ``final.json`` when a finished run is run again)."""
     import nlopt
 
     from ..density import DensityModel
@@ -229,6 +230,12 @@ def optimize_density(design, phantoms: list, mesh_settings, physics, cfg, param,
             where = (f"stage {stage + 1} of {len(cfg.betas)}, {done} iterations done" if stage < len(cfg.betas)
                      else "every stage done, writing the outputs again")
             progress(f"resuming {out}: {where}; {len(history)} evaluations stored")
+    if stage >= len(cfg.betas):
+        final = _stored_final(out / "final.json", identity, x)
+        if final is not None:  # nothing left to solve: the outline keys alone changed, or the run is repeated
+            if progress:
+                progress(f"final layout read from {out / 'final.json'} (mean V_rel {final['v_rel']:.5f})")
+            return x, history, ff.density(x, cfg.betas[-1]), final["v_rel"]
     t_setup = time.perf_counter()
     model = DensityModel(design, cfg.cells, mesh_settings, physics)
     if progress:
@@ -353,11 +360,20 @@ def optimize_density(design, phantoms: list, mesh_settings, physics, cfg, param,
                      f"stage {k + 1}: beta {beta:g}, {cfg.cells}x{cfg.cells} cells, {len(phantoms)} phantoms")
     beta = cfg.betas[-1]
     rho, ev, _, pe = evaluate(np.asarray(x), beta)
-    final = final_record(ev, rho, pe, identity)
+    final = {**final_record(ev, rho, pe, identity), "x": np.asarray(x).tolist()}
     if cfg.max_isolation is not None:  # the returned point's, not the last evaluated one's
         final["isolation"] = isolation(np.asarray(x), beta)[0]
     _write_json(out / "final.json", final)
-    return np.asarray(x), history, rho, ev
+    return np.asarray(x), history, rho, ev.v_rel
+
+
+def _stored_final(path: Path, identity: dict, x: np.ndarray) -> dict | None:
+    """``final.json`` of this run at the variables ``x``, or None (missing, another run's, or another point's)."""
+    if not path.is_file():
+        return None
+    final = json.loads(path.read_text())
+    same_point = final.get("x") is not None and np.array_equal(np.asarray(final["x"], dtype=float), x)
+    return final if same_point and same_run(final.get("identity"), identity) else None
 
 
 #: Keys that only shape the outline written at the end, never an iterate: a finished run re-run with other values

@@ -66,7 +66,7 @@ def run_graded(design, phantoms: list, mesh_settings, physics, cfg: GradedConfig
         raise ParameterError("graded.min_island_mm", f"room for a channel of at least start_width_mm "
                              f"{cfg.start_width_mm:g} mm at pitch {design.pitch_mm:g} mm", cfg.min_island_mm)
     n = param.n_variables
-    x, history, rho, ev = optimize_density(design, phantoms, mesh_settings, physics, cfg, param,
+    x, history, rho, v_rel = optimize_density(design, phantoms, mesh_settings, physics, cfg, param,
                                            np.full(n, cfg.start_width_mm), np.full(n, cfg.min_width_mm),
                                            np.full(n, upper_w), out_dir, progress, jobs=jobs)
     widths = param.widths(x)
@@ -81,5 +81,5 @@ def run_graded(design, phantoms: list, mesh_settings, physics, cfg: GradedConfig
              f"fabrication bounds: {cfg.min_width_mm:g} <= w <= {upper_w:g} mm (islands >= {cfg.min_island_mm:g} mm)")
     files = write_outputs(design, rho, cfg, out, history, geometry=param.polygons(x), extra_lines=lines)
     files["widths"] = str(out / "widths.json")
-    return FreeformResult(density=rho, variables=x, v_rel=ev.v_rel, hydrogel_fraction=float(rho.mean()),
+    return FreeformResult(density=rho, variables=x, v_rel=v_rel, hydrogel_fraction=float(rho.mean()),
                           evaluations=len(history), history=history, files=files)
