@@ -178,15 +178,9 @@ def _write_table(path: Path, rows: list[dict]) -> Path:
     return path
 
 
-def plot_front(path: Path, points: list[dict], references: list[dict], title: str) -> Path:
-    """Mean V_rel against uniformity: the optimized points joined in order of their floor, every reference
-    family in its own marker with its widths written beside it."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(7.0, 5.0), layout="constrained")
+def draw_front(ax, points: list[dict], references: list[dict]) -> None:
+    """Draw the optimized points (``label``, ``uniformity``, ``v_rel``, ``floor_met``) joined in order of
+    uniformity, and the reference lattices (``label`` as "<family> w<width>") in a marker per family, on ``ax``."""
     # a point that missed its floor is drawn hollow and left off the line: the optimizer stopped short of it
     on = sorted((p for p in points if p["floor_met"] is not False), key=lambda p: p["uniformity"])
     missed = [p for p in points if p["floor_met"] is False]
@@ -209,6 +203,18 @@ def plot_front(path: Path, points: list[dict], references: list[dict], title: st
             if " " in r["label"]:
                 ax.annotate(r["label"].split()[1], (r["uniformity"], r["v_rel"]), textcoords="offset points",
                             xytext=(4, -8), fontsize=6, color=line.get_color())
+
+
+def plot_front(path: Path, points: list[dict], references: list[dict], title: str) -> Path:
+    """Mean V_rel against uniformity: the optimized points joined in order of their floor, every reference
+    family in its own marker with its widths written beside it."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7.0, 5.0), layout="constrained")
+    draw_front(ax, points, references)
     ax.set_xlabel("uniformity over the probe grid (1 - CV of V_rel)")
     ax.set_ylabel("mean V_rel over the study's phantoms")
     ax.set_title(title, fontsize=8, wrap=True)

@@ -15,10 +15,27 @@ from ..captions import wrap_title
 from ._rows import _grid_column, _names
 from .config import Study
 
-__all__ = ["plot_layouts"]
+__all__ = ["draw_layout", "plot_layouts"]
 
 #: At most this many panels per row.
 COLUMNS = 5
+
+
+def draw_layout(ax, design, title: str) -> None:
+    """Draw one design's hydrogel footprint (blue) and its electrodes (black ticks on the rim) on ``ax``, from
+    above, titled ``title``."""
+    from shapely.plotting import plot_polygon
+
+    L = design.size_mm
+    plot_polygon(design.footprint(), ax=ax, add_points=False, facecolor="tab:blue", edgecolor="navy",
+                 linewidth=0.4, alpha=0.85)
+    half = design.electrode_width_mm / 2
+    for c in design.electrode_centres_mm:  # the same positions on every side
+        for seg in (((c - half, c + half), (0, 0)), ((c - half, c + half), (L, L)),
+                    ((0, 0), (c - half, c + half)), ((L, L), (c - half, c + half))):
+            ax.plot(*seg, color="black", linewidth=2.5, solid_capstyle="butt")
+    ax.set(xlim=(-2, L + 2), ylim=(-2, L + 2), aspect="equal", xticks=[], yticks=[])
+    ax.set_title(title, fontsize=8)
 
 
 def plot_layouts(study: Study, summary: Sequence[dict], path: Path) -> Path | None:
@@ -29,7 +46,6 @@ def plot_layouts(study: Study, summary: Sequence[dict], path: Path) -> Path | No
     Returns ``path``, or ``None`` when the study's grid does not vary ``layout`` (nothing to draw).
     """
     from matplotlib.figure import Figure
-    from shapely.plotting import plot_polygon
 
     if _grid_column(study, "layout") is None:
         return None
@@ -39,18 +55,9 @@ def plot_layouts(study: Study, summary: Sequence[dict], path: Path) -> Path | No
     fig = Figure(figsize=(2.6 * cols, 2.9 * rows), layout="constrained")
     axes = fig.subplots(rows, cols, squeeze=False).ravel()
     for ax, design, name, row in zip(axes, study.designs, _names(study), summary):
-        L = design.size_mm
-        plot_polygon(design.footprint(), ax=ax, add_points=False, facecolor="tab:blue", edgecolor="navy",
-                     linewidth=0.4, alpha=0.85)
-        half = design.electrode_width_mm / 2
-        for c in design.electrode_centres_mm:  # the same positions on every side
-            for seg in (((c - half, c + half), (0, 0)), ((c - half, c + half), (L, L)),
-                        ((0, 0), (c - half, c + half)), ((L, L), (c - half, c + half))):
-                ax.plot(*seg, color="black", linewidth=2.5, solid_capstyle="butt")
-        ax.set(xlim=(-2, L + 2), ylim=(-2, L + 2), aspect="equal", xticks=[], yticks=[])
         mean, se = row.get("v_rel_mean", math.nan), row.get("v_rel_se", math.nan)
         score = f"V_rel {mean:.4f} ± {se:.4f}" if math.isfinite(mean) else "not compared"
-        ax.set_title(f"{name}\n{score} (n = {row.get('n', 0)})", fontsize=8)
+        draw_layout(ax, design, f"{name}\n{score} (n = {row.get('n', 0)})")
     for ax in axes[n:]:
         ax.set_axis_off()
     fig.suptitle(wrap_title(f"{study.name}: hydrogel (blue) and electrodes (black), t = "
