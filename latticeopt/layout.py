@@ -84,6 +84,28 @@ def square_lines_mm(size_mm: float, pitch_mm: float, rim: str) -> np.ndarray:
     return lines
 
 
+def lattice_lines(pattern: str, size_mm: float, pitch_mm: float) -> tuple[np.ndarray, np.ndarray]:
+    """The centre lines of a straight-line pattern without rim channel, as unit normals ``(m, 2)`` and offsets
+    ``(m,)`` (mm) from the sensor's centre: ``n . (p - centre) = offset``. Only lines crossing the sensor's inside
+    (a line on a side would be part of a rim channel); ``square`` has the lines of :func:`square_lines_mm`."""
+    L = size_mm
+    angles = {"square": (0.0, 90.0), "diagonal": (45.0, 135.0), "triangular": (90.0, 210.0, 330.0)}
+    if pattern not in angles:
+        raise ValueError(f"pattern: expected one of {tuple(angles)}, got {pattern!r}")
+    normals, offsets = [], []
+    for deg in angles[pattern]:
+        n = np.array([math.cos(math.radians(deg)), math.sin(math.radians(deg))])
+        n[np.abs(n) < 1e-12] = 0.0
+        offs = (square_lines_mm(L, pitch_mm, "none") - L / 2 if pattern == "square"
+                else _line_offsets(pitch_mm, L))
+        reach = L / 2 * (abs(n[0]) + abs(n[1]))  # the largest |offset| of a line still touching the square
+        for o in offs:
+            if abs(o) < reach * (1 - 1e-9):
+                normals.append(n)
+                offsets.append(float(o))
+    return np.array(normals), np.array(offsets)
+
+
 def _square_strips(size_mm: float, pitch_mm: float, h: float) -> list:
     L = size_mm
     lines = square_lines_mm(L, pitch_mm, "channel")

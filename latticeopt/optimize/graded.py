@@ -1,11 +1,13 @@
-"""Graded square lattices: a channel width per line (grouped by the sensor's symmetry), maximized by MMA with
-adjoint gradients through the lines' smooth density (:class:`~latticeopt.density.graded.GradedSquare`).
+"""Graded lattices: a channel width per line (grouped by the sensor's symmetry) of the design's square, diagonal or
+triangular pattern, maximized by MMA with adjoint gradients through the lines' smooth density
+(:class:`~latticeopt.density.graded.GradedSquare`, :class:`~latticeopt.density.graded_strips.GradedStrips`).
 
 A ``kind = "graded"`` study (``studies/optimize_graded.toml``) shares the free-form studies' tables and loop
 (:func:`~latticeopt.optimize.freeform.optimize_density`: resumable, a line per evaluation, the hydrogel fraction
 bounds and the stretch cap as constraints); the fabrication limits are bounds: every channel at least
-``min_width_mm``, every island at least ``min_island_mm`` (``w <= pitch - min_island``). The outline it writes is
-exact (the union of the channel rectangles), so the grid mesher meshes it exactly.
+``min_width_mm``, every island at least ``min_island_mm`` (:func:`max_width_mm`). The outline it writes is exact
+(the union of the channel strips, and for the slanted patterns the leads to electrodes the lines miss): the grid
+mesher meshes a square one exactly, the extruded mesher a slanted one.
 """
 
 from __future__ import annotations
@@ -53,32 +55,68 @@ class GradedConfig(DensityStudyConfig):
         set_(self, "iterations", v.integer("graded.iterations", self.iterations, lo=1, hi=1000))
 
 
+def graded_parametrization(design, cfg: GradedConfig):
+    """The design's lattice with a width per line orbit: :class:`~latticeopt.density.graded.GradedSquare` for the
+    square pattern, :class:`~latticeopt.density.graded_strips.GradedStrips` (leads laid at ``min_width_mm``) for
+    the diagonal and triangular ones; any other pattern is refused."""
+    from ..density.graded import GradedSquare
+    from ..density.graded_strips import GradedStrips
+
+    if design.pattern == "square":
+        return GradedSquare(design, cfg.cells, cfg.symmetry, cfg.smoothing_mm, cfg.samples)
+    return GradedStrips(design, cfg.cells, cfg.symmetry, cfg.smoothing_mm, cfg.samples, cfg.min_width_mm)
+
+
+def max_width_mm(design, cfg: GradedConfig) -> float:
+    """The widest channel that leaves islands of ``min_island_mm``: the pattern's no-island width (the pitch;
+    2/3 of it for triangles) less the island (its side, or for triangles the inscribed circle's diameter)."""
+    from ..layout import MAX_WIDTH_FRACTION
+
+    return MAX_WIDTH_FRACTION[design.pattern] * design.pitch_mm - cfg.min_island_mm
+
+
+def _widths_table(design, param, x: np.ndarray, cfg: GradedConfig) -> tuple[dict, list[str]]:
+    """``widths.json`` and the report's lines on the widths."""
+    widths = param.widths(x)
+    if design.pattern == "square":
+        m = len(param.lines_mm)
+        table = {"lines_mm": param.lines_mm.tolist(), "widths_along_y_mm": widths[:m].tolist(),
+                 "widths_along_x_mm": widths[m:].tolist(), "variables_mm": x.tolist(), "symmetry": cfg.symmetry}
+        return table, [f"graded square lattice: pitch {design.pitch_mm:g} mm, widths (mm) of the lines at "
+                       + ", ".join(f"{c:g}" for c in param.lines_mm) + ": along y "
+                       + ", ".join(f"{w:.3f}" for w in widths[:m]) + "; along x "
+                       + ", ".join(f"{w:.3f}" for w in widths[m:])]
+    angles = np.degrees(np.arctan2(param.normals[:, 1], param.normals[:, 0]))
+    table = {"pattern": design.pattern, "lines": [
+        {"normal_deg": float(a), "offset_mm": float(o), "width_mm": float(w), "orbit": int(g)}
+        for a, o, w, g in zip(angles, param.offsets_mm, widths, param.group)],
+        "variables_mm": x.tolist(), "symmetry": cfg.symmetry, "leads_area_mm2": float(param.leads.area)}
+    return table, [f"graded {design.pattern} lattice: pitch {design.pitch_mm:g} mm, {len(widths)} lines in "
+                   f"{param.n_variables} orbits ({cfg.symmetry}), widths by orbit (mm): "
+                   + ", ".join(f"{w:.3f}" for w in x)
+                   + (f"; leads to electrodes the lines miss: {param.leads.area:.1f} mm^2" if param.leads.area
+                      else "")]
+
+
 def run_graded(design, phantoms: list, mesh_settings, physics, cfg: GradedConfig, out_dir,
                progress: Callable[[str], None] | None = print, jobs: int = 1) -> FreeformResult:
     """Run (or resume) a graded-lattice optimization into ``out_dir`` (module docstring); ``jobs`` worker
     processes press the phantoms of each iterate."""
-    from ..density.graded import GradedSquare
-
-    param = GradedSquare(design, cfg.cells, cfg.symmetry, cfg.smoothing_mm, cfg.samples)
+    param = graded_parametrization(design, cfg)
     warn_if_unresolved("graded.min_width_mm", cfg.min_width_mm, mesh_settings)
-    upper_w = design.pitch_mm - cfg.min_island_mm
+    upper_w = max_width_mm(design, cfg)
     if upper_w < max(cfg.min_width_mm, cfg.start_width_mm):
         raise ParameterError("graded.min_island_mm", f"room for a channel of at least start_width_mm "
                              f"{cfg.start_width_mm:g} mm at pitch {design.pitch_mm:g} mm", cfg.min_island_mm)
     n = param.n_variables
     x, history, rho, v_rel = optimize_density(design, phantoms, mesh_settings, physics, cfg, param,
-                                           np.full(n, cfg.start_width_mm), np.full(n, cfg.min_width_mm),
-                                           np.full(n, upper_w), out_dir, progress, jobs=jobs)
-    widths = param.widths(x)
-    m = len(param.lines_mm)
-    table = {"lines_mm": param.lines_mm.tolist(), "widths_along_y_mm": widths[:m].tolist(),
-             "widths_along_x_mm": widths[m:].tolist(), "variables_mm": x.tolist(), "symmetry": cfg.symmetry}
+                                              np.full(n, cfg.start_width_mm), np.full(n, cfg.min_width_mm),
+                                              np.full(n, upper_w), out_dir, progress, jobs=jobs)
+    table, lines = _widths_table(design, param, x, cfg)
+    lines.append(f"fabrication bounds: {cfg.min_width_mm:g} <= w <= {upper_w:g} mm (islands >= "
+                 f"{cfg.min_island_mm:g} mm)")
     out = Path(out_dir)
     (out / "widths.json").write_text(json.dumps(table, indent=1))
-    lines = (f"graded square lattice: pitch {design.pitch_mm:g} mm, widths (mm) of the lines at "
-             + ", ".join(f"{c:g}" for c in param.lines_mm) + ": along y " + ", ".join(f"{w:.3f}" for w in widths[:m])
-             + "; along x " + ", ".join(f"{w:.3f}" for w in widths[m:]),
-             f"fabrication bounds: {cfg.min_width_mm:g} <= w <= {upper_w:g} mm (islands >= {cfg.min_island_mm:g} mm)")
     files = write_outputs(design, rho, cfg, out, history, geometry=param.polygons(x), extra_lines=lines)
     files["widths"] = str(out / "widths.json")
     return FreeformResult(density=rho, variables=x, v_rel=v_rel, hydrogel_fraction=float(rho.mean()),
