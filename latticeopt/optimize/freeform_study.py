@@ -109,6 +109,12 @@ def freeform_from_dict(raw: Mapping, source: str, overridden: Mapping[str, str] 
         raise rename(exc, kind) from None
     except TypeError as exc:
         raise ParameterError(name(kind), "keys of the right types", str(exc)) from None
+    if kind == "graded":
+        from ..density.graded_strips import STRIP_PATTERNS
+
+        if design.pattern not in STRIP_PATTERNS:
+            raise ParameterError(name("design.pattern"), f"a lattice of straight lines to grade: one of "
+                                 f"{', '.join(STRIP_PATTERNS)}", design.pattern)
     if config.probes_on:
         from .probes import ProbeGrid
 
