@@ -183,9 +183,9 @@ def run_freeform(design, phantoms: list, mesh_settings, physics, cfg: FreeformCo
     n = ff.n_variables
     # the bound reads the layout eroded to isolation_threshold: a bridge parked at the outline's threshold is cut
     eroded = dataclasses.replace(ff, eta=cfg.isolation_threshold)
-    x, history, rho, v_rel = optimize_density(design, phantoms, mesh_settings, physics, cfg, ff, np.full(n, cfg.start),
-                                           np.zeros(n), np.ones(n), out_dir, progress, isolation_param=eroded,
-                                           jobs=jobs)
+    x, history, rho, v_rel = optimize_density(design, phantoms, mesh_settings, physics, cfg, ff,
+                                              np.full(n, cfg.start), np.zeros(n), np.ones(n), out_dir, progress,
+                                              isolation_param=eroded, jobs=jobs)
     files = write_outputs(design, rho, cfg, Path(out_dir), history, extra_lines=(
         f"free-form layout: minimum feature {cfg.min_feature_mm:g} mm, pads {cfg.pad_mm:g} mm",))
     return FreeformResult(density=rho, variables=x, v_rel=v_rel, hydrogel_fraction=float(rho.mean()),
