@@ -42,8 +42,11 @@ OUTLINES = {
     "square_w4.geojson": ("reference", "square w4"),
     "square_w6.geojson": ("reference", "square w6"),
     "square_w8.geojson": ("reference", "square w8"),
+    "diagonal_w4.geojson": ("reference", "diagonal w4"),
+    "diagonal_same_fraction_as_graded_diagonal.geojson": ("reference", "diagonal w5.1"),
     "graded_d4_t3.geojson": ("other", "graded, 1 mm mould"),
     "freeform_d4_t3_30.geojson": ("other", "free-form"),
+    "graded_diagonal_d4_t3.geojson": ("other", "graded diagonal, 4 mm mould"),
 }
 
 
@@ -84,7 +87,7 @@ def paired(a: dict, b: dict) -> tuple[float, float, int]:
 def table(scores: dict[str, dict]) -> list[str]:
     """Markdown rows: each front point against the square lattice of the nearest gel fraction and against w = 4
     (its minimum feature)."""
-    squares = {f: s for f, s in scores.items() if OUTLINES[f][0] == "reference"}
+    squares = {f: s for f, s in scores.items() if OUTLINES[f][1].startswith("square")}
     lines = ["| point (gel fraction) | held-out mean V_rel ± SE | uniformity | worst-to-best "
              "| minus the square lattice of its gel fraction | minus square w = 4 |", "|---|---|---|---|---|---|"]
     for f, s in scores.items():
