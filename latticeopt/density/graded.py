@@ -21,6 +21,11 @@ from ..layout import square_lines_mm
 GRADED_SYMMETRIES = ("none", "mirror", "d4")
 
 
+def pool_samples(field_: np.ndarray, n: int, k: int) -> np.ndarray:
+    """Mean over each cell's ``k x k`` samples: ``(n k, n k)`` -> ``(n, n)`` (rows y, columns x)."""
+    return field_.reshape(n, k, n, k).mean(axis=(1, 3))
+
+
 @dataclass(frozen=True, eq=False)
 class GradedSquare:
     """Per-line widths of the square lattice -> density layout (module docstring).
@@ -83,16 +88,11 @@ class GradedSquare:
         db = 0.25 / s * (1.0 - np.tanh(t) ** 2)  # d b / d w
         return b[:m], b[m:], db[:m], db[m:]
 
-    def _pool(self, field_: np.ndarray) -> np.ndarray:
-        """Mean over each cell's ``k x k`` samples: ``(n k, n k)`` -> ``(n, n)`` (rows y, columns x)."""
-        n, k = self.n, self.samples
-        return field_.reshape(n, k, n, k).mean(axis=(1, 3))
-
     def density(self, x: np.ndarray, beta: float | None = None) -> np.ndarray:
         """The ``(n, n)`` density of the widths ``x`` (one per symmetry orbit); ``beta`` is ignored."""
         bx, by, _, _ = self._bands(self.widths(x))
         qx, qy = np.prod(1.0 - bx, axis=0), np.prod(1.0 - by, axis=0)  # silicone fraction along x, along y
-        return self._pool(1.0 - np.outer(qy, qx))
+        return pool_samples(1.0 - np.outer(qy, qx), self.n, self.samples)
 
     def gradient(self, x: np.ndarray, beta: float | None, grad_density: np.ndarray) -> np.ndarray:
         """``d f / d x`` from ``d f / d rho`` (shape ``(n, n)``)."""

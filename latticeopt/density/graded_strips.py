@@ -22,9 +22,9 @@ import numpy as np
 
 from .. import _validate as v
 from ..errors import ParameterError
+from .graded import GRADED_SYMMETRIES, pool_samples
 
 STRIP_PATTERNS = ("square", "diagonal", "triangular")
-STRIP_SYMMETRIES = ("none", "mirror", "d4")
 _GROUPS = {
     "none": [np.eye(2)],
     "mirror": [np.eye(2), np.diag([-1.0, 1.0]), np.diag([1.0, -1.0]), -np.eye(2)],
@@ -97,7 +97,7 @@ class GradedStrips:
         if self.design.pattern not in STRIP_PATTERNS:
             raise ParameterError("design.pattern", f"a graded straight-line lattice: one of {STRIP_PATTERNS}",
                                  self.design.pattern)
-        set_(self, "symmetry", v.choice("symmetry", self.symmetry, STRIP_SYMMETRIES))
+        set_(self, "symmetry", v.choice("symmetry", self.symmetry, GRADED_SYMMETRIES))
         set_(self, "smoothing_mm", v.real("smoothing_mm", self.smoothing_mm, lo=0.0, lo_open=True, hi=10.0))
         set_(self, "samples", v.integer("samples", self.samples, lo=1, hi=16))
         set_(self, "lead_width_mm", v.real("lead_width_mm", self.lead_width_mm, lo=0.0, lo_open=True, hi=50.0))
@@ -129,14 +129,10 @@ class GradedStrips:
         th = np.tanh(t)
         return 0.5 * (1.0 + th), 0.25 / self.smoothing_mm * (1.0 - th ** 2)  # b and d b / d w
 
-    def _pool(self, field_: np.ndarray) -> np.ndarray:
-        n, k = self.n, self.samples
-        return field_.reshape(n, k, n, k).mean(axis=(1, 3))
-
     def density(self, x: np.ndarray, beta: float | None = None) -> np.ndarray:
         """The ``(n, n)`` density (rows y, columns x) of the widths ``x``; ``beta`` is ignored."""
         b, _ = self._bands(self.widths(x))
-        return self._pool(1.0 - (1.0 - self._lead) * np.prod(1.0 - b, axis=0))
+        return pool_samples(1.0 - (1.0 - self._lead) * np.prod(1.0 - b, axis=0), self.n, self.samples)
 
     def gradient(self, x: np.ndarray, beta: float | None, grad_density: np.ndarray) -> np.ndarray:
         """``d f / d x`` from ``d f / d rho`` (shape ``(n, n)``)."""
