@@ -57,12 +57,12 @@ def _rows(path: Path) -> list[dict]:
 
 def collect(heldout: Path, probes: Path) -> dict[str, dict]:
     """Per outline file of :data:`OUTLINES`: gel fraction, held-out mean V_rel and SE, probe uniformity and
-    worst-to-best, and the held-out V_rel per phantom (``{phantom_index: v_rel}``) for paired differences."""
+    worst-to-best, and the held-out V_rel per phantom (``{phantom_key: v_rel}``) for paired differences."""
     by_key = {r["design_key"]: r for r in _rows(probes / "summary.csv")}
-    per_phantom: dict[str, dict[int, float]] = {}
+    per_phantom: dict[str, dict[str, float]] = {}
     for r in _rows(heldout / "results.csv"):
-        if r["status"] == "ok":
-            per_phantom.setdefault(r["design_key"], {})[int(r["phantom_index"])] = float(r["v_rel"])
+        if r["status"] == "ok":  # phantom_index counts within a touch count: the content hash names a phantom
+            per_phantom.setdefault(r["design_key"], {})[r["phantom_key"]] = float(r["v_rel"])
     out = {}
     for r in _rows(heldout / "summary.csv"):
         probe = by_key.get(r["design_key"])
