@@ -165,7 +165,8 @@ def test_front_runs_resumes_and_plots(tmp_path, capsys, monkeypatch):
 
 def test_runs_without_probes_keep_their_recorded_settings():
     """The probe keys at their defaults are not part of a run's identity: runs begun before them still resume."""
-    from latticeopt.optimize.freeform import FreeformConfig, run_identity
+    from latticeopt.optimize.freeform import FreeformConfig
+    from latticeopt.optimize.identity import run_identity
     from latticeopt.optimize.probes import PROBE_DEFAULTS
 
     ident = run_identity(DESIGN, [], MeshSettings(), PhysicsSettings(), FreeformConfig())
@@ -177,9 +178,9 @@ def test_runs_without_probes_keep_their_recorded_settings():
 def test_a_front_point_is_the_study_run_on_its_own(monkeypatch):
     """The point folders of a front hold what `--set graded.probes=true` (free) and `--set graded.min_uniformity=u`
     runs would: the documented loop of single runs and the front share their folders."""
-    from latticeopt.optimize.freeform import run_identity
     from latticeopt.optimize.freeform_study import freeform_from_dict
     from latticeopt.optimize.front import front_points
+    from latticeopt.optimize.identity import run_identity
     from latticeopt.study.config import read_study_table
 
     def load(*sets):

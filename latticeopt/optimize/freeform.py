@@ -20,7 +20,7 @@ import logging
 import math
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import ClassVar
 
@@ -29,8 +29,9 @@ import numpy as np
 from .. import _validate as v
 from .._npzfile import write_atomic
 from ..errors import ParameterError
+from .identity import extends_run, run_identity, same_run, stored_final
 from .layout_outputs import write_outputs
-from .probes import FLOOR_TOL, PROBE_DEFAULTS, ProbeGrid, ProbeKeys, final_record, uniformity_constraint
+from .probes import FLOOR_TOL, ProbeGrid, ProbeKeys, final_record, uniformity_constraint
 
 log = logging.getLogger(__name__)
 
@@ -231,7 +232,7 @@ def optimize_density(design, phantoms: list, mesh_settings, physics, cfg, param,
                      else "every stage done, writing the outputs again")
             progress(f"resuming {out}: {where}; {len(history)} evaluations stored")
     if stage >= len(cfg.betas):
-        final = _stored_final(out / "final.json", identity, x)
+        final = stored_final(out / "final.json", identity, x)
         if final is not None:  # nothing left to solve: the outline keys alone changed, or the run is repeated
             if progress:
                 progress(f"final layout read from {out / 'final.json'} (mean V_rel {final['v_rel']:.5f})")
@@ -365,50 +366,3 @@ def optimize_density(design, phantoms: list, mesh_settings, physics, cfg, param,
         final["isolation"] = isolation(np.asarray(x), beta)[0]
     _write_json(out / "final.json", final)
     return np.asarray(x), history, rho, ev.v_rel
-
-
-def _stored_final(path: Path, identity: dict, x: np.ndarray) -> dict | None:
-    """``final.json`` of this run at the variables ``x``, or None (missing, another run's, or another point's)."""
-    if not path.is_file():
-        return None
-    final = json.loads(path.read_text())
-    same_point = final.get("x") is not None and np.array_equal(np.asarray(final["x"], dtype=float), x)
-    return final if same_point and same_run(final.get("identity"), identity) else None
-
-
-#: Keys that only shape the outline written at the end, never an iterate: a finished run re-run with other values
-#: writes its outputs again instead of refusing the folder.
-OUTLINE_KEYS = ("threshold", "smooth_mm")
-
-
-def run_identity(design, phantoms: list, mesh_settings, physics, cfg) -> dict:
-    """What a run folder's ``state.json`` must match to be resumed (and ``final.json`` to be reused).
-
-    Probe keys at their defaults are left out, so a run begun before they existed still resumes; so are the
-    outline keys (:data:`OUTLINE_KEYS`), compared by :func:`same_run` on neither side."""
-    config = {k: val for k, val in asdict(cfg).items()
-              if k not in OUTLINE_KEYS and (k not in PROBE_DEFAULTS or val != PROBE_DEFAULTS[k])}
-    return json.loads(json.dumps({
-        "config": config, "design": design.as_dict(), "mesh": mesh_settings.as_dict(),
-        "physics": physics.as_dict(), "phantoms": [[t.as_dict() for t in p] for p in phantoms]}))
-
-
-def extends_run(stored: dict | None, identity: dict) -> bool:
-    """Whether ``identity`` is a stored run with stages appended to its ``betas`` and nothing else changed: the
-    run resumes from its last iterate into the new stages (a layout still grey at the end of its continuation
-    goes on sharpening instead of starting over)."""
-    if not isinstance(stored, dict) or not isinstance(stored.get("config"), dict):
-        return False
-    old, new = list(stored["config"].get("betas", [])), list(identity["config"].get("betas", []))
-    if not 0 < len(old) < len(new) or new[:len(old)] != old:
-        return False
-    return same_run({**stored, "config": {**stored["config"], "betas": new}}, identity)
-
-
-def same_run(stored: dict | None, identity: dict) -> bool:
-    """Whether a stored identity (``state.json``, ``final.json``, ``references.json``) is ``identity``'s run,
-    ignoring :data:`OUTLINE_KEYS` (a folder written before they left the identity still holds them)."""
-    if not isinstance(stored, dict):
-        return False
-    config = {k: val for k, val in stored.get("config", {}).items() if k not in OUTLINE_KEYS}
-    return {**stored, "config": config} == identity

@@ -66,7 +66,7 @@ def describe_front(study, out: Path) -> list[str]:
 
 
 def _finished(study, cfg, folder: Path) -> dict | None:
-    from .freeform import run_identity, same_run
+    from .identity import run_identity, same_run
 
     path = folder / "final.json"
     if not (path.is_file() and (folder / "report.txt").is_file()):
@@ -129,7 +129,8 @@ def _references(study, out: Path, progress, jobs: int = 1) -> list[dict]:
     """Score :data:`REFERENCES` on the study's density model (resumable through ``references.json``)."""
     from ..density import DensityModel
     from ..density.field import density_of_design
-    from .freeform import _write_json, run_identity, same_run
+    from .freeform import _write_json
+    from .identity import run_identity, same_run
     from .probes import ProbeGrid
 
     cfg = replace(study.config, front=(), min_uniformity=None, probes=True)
