@@ -190,9 +190,10 @@ def draw_front(ax, points: list[dict], references: list[dict]) -> None:
     if missed:
         ax.plot([p["uniformity"] for p in missed], [p["v_rel"] for p in missed], "o", mfc="white", mec="k", ms=6,
                 zorder=4, label="floor not reached")
-    for p in points:
-        ax.annotate(p["label"], (p["uniformity"], p["v_rel"]), textcoords="offset points", xytext=(5, 4),
-                    fontsize=7)
+    # labels alternate above and below in order of uniformity: neighbouring points on the front do not overprint
+    for i, p in enumerate(sorted(points, key=lambda p: p["uniformity"])):
+        ax.annotate(p["label"], (p["uniformity"], p["v_rel"]), textcoords="offset points",
+                    xytext=(5, 4 if i % 2 == 0 else -10), fontsize=7)
     markers = {"uniform": "*", "square": "s", "hexagonal": "h", "triangular": "^", "diagonal": "D"}
     for family, marker in markers.items():
         rows = [r for r in references if r["label"].split()[0] == family]
