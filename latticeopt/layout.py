@@ -57,12 +57,19 @@ def _rect(a: np.ndarray, b: np.ndarray, half_w: float):
     return shapely.Polygon([a - nrm, b - nrm, b + nrm, a + nrm])
 
 
+def line_strip(normal: np.ndarray, offset: float, centre: np.ndarray, half_w: float, reach: float):
+    """The rectangle of half-width ``half_w`` around the line ``normal . (x - centre) = offset`` (unit ``normal``),
+    ``reach`` long either side of the line's point nearest ``centre`` (mm)."""
+    tangent = np.array([-normal[1], normal[0]])
+    foot = centre + offset * normal
+    return _rect(foot - reach * tangent, foot + reach * tangent, half_w)
+
+
 def _strips(normal_deg: float, offsets: np.ndarray, centre: np.ndarray, half_w: float, reach: float) -> list:
     """Rectangles of half-width ``half_w`` around the lines ``n . (x - centre) = offset`` (long enough to
     cross the sensor); ``n`` points at ``normal_deg``."""
     n = np.array([math.cos(math.radians(normal_deg)), math.sin(math.radians(normal_deg))])
-    tangent = np.array([-n[1], n[0]])
-    return [_rect(centre + off * n - reach * tangent, centre + off * n + reach * tangent, half_w) for off in offsets]
+    return [line_strip(n, off, centre, half_w, reach) for off in offsets]
 
 
 def _line_offsets(pitch: float, reach: float) -> np.ndarray:
@@ -84,16 +91,19 @@ def square_lines_mm(size_mm: float, pitch_mm: float, rim: str) -> np.ndarray:
     return lines
 
 
+#: The directions (degrees) of the line normals of the straight-line patterns.
+LINE_ANGLES = {"square": (0.0, 90.0), "diagonal": (45.0, 135.0), "triangular": (90.0, 210.0, 330.0)}
+
+
 def lattice_lines(pattern: str, size_mm: float, pitch_mm: float) -> tuple[np.ndarray, np.ndarray]:
     """The centre lines of a straight-line pattern without rim channel, as unit normals ``(m, 2)`` and offsets
     ``(m,)`` (mm) from the sensor's centre: ``n . (p - centre) = offset``. Only lines crossing the sensor's inside
     (a line on a side would be part of a rim channel); ``square`` has the lines of :func:`square_lines_mm`."""
     L = size_mm
-    angles = {"square": (0.0, 90.0), "diagonal": (45.0, 135.0), "triangular": (90.0, 210.0, 330.0)}
-    if pattern not in angles:
-        raise ValueError(f"pattern: expected one of {tuple(angles)}, got {pattern!r}")
+    if pattern not in LINE_ANGLES:
+        raise ValueError(f"pattern: expected one of {tuple(LINE_ANGLES)}, got {pattern!r}")
     normals, offsets = [], []
-    for deg in angles[pattern]:
+    for deg in LINE_ANGLES[pattern]:
         n = np.array([math.cos(math.radians(deg)), math.sin(math.radians(deg))])
         n[np.abs(n) < 1e-12] = 0.0
         offs = (square_lines_mm(L, pitch_mm, "none") - L / 2 if pattern == "square"
@@ -115,13 +125,13 @@ def _square_strips(size_mm: float, pitch_mm: float, h: float) -> list:
 def _diagonal_strips(size_mm: float, pitch_mm: float, h: float) -> list:
     centre, reach = np.array([size_mm / 2, size_mm / 2]), size_mm
     offs = _line_offsets(pitch_mm, reach)
-    return _strips(45.0, offs, centre, h, reach) + _strips(135.0, offs, centre, h, reach)
+    return [s for ang in LINE_ANGLES["diagonal"] for s in _strips(ang, offs, centre, h, reach)]
 
 
 def _triangular_strips(size_mm: float, pitch_mm: float, h: float) -> list:
     centre, reach = np.array([size_mm / 2, size_mm / 2]), size_mm
     offs = _line_offsets(pitch_mm, reach)
-    return [s for ang in (90.0, 210.0, 330.0) for s in _strips(ang, offs, centre, h, reach)]
+    return [s for ang in LINE_ANGLES["triangular"] for s in _strips(ang, offs, centre, h, reach)]
 
 
 def _hexagonal_strips(size_mm: float, pitch_mm: float, h: float) -> list:

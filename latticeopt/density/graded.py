@@ -26,6 +26,12 @@ def pool_samples(field_: np.ndarray, n: int, k: int) -> np.ndarray:
     return field_.reshape(n, k, n, k).mean(axis=(1, 3))
 
 
+def pool_samples_adjoint(grad_density: np.ndarray, k: int) -> np.ndarray:
+    """The transpose of :func:`pool_samples`: ``d f / d rho`` per cell ``(n, n)`` -> ``d f / d field`` per sample
+    ``(n k, n k)`` (each cell's value shared by its ``k x k`` samples)."""
+    return np.repeat(np.repeat(np.asarray(grad_density, dtype=float), k, axis=0), k, axis=1) / k ** 2
+
+
 @dataclass(frozen=True, eq=False)
 class GradedSquare:
     """Per-line widths of the square lattice -> density layout (module docstring).
@@ -101,7 +107,7 @@ class GradedSquare:
         bx, by, dbx, dby = self._bands(w)
         qx, qy = np.prod(1.0 - bx, axis=0), np.prod(1.0 - by, axis=0)
         k = self.samples
-        G = np.repeat(np.repeat(np.asarray(grad_density, dtype=float), k, axis=0), k, axis=1) / k ** 2
+        G = pool_samples_adjoint(grad_density, k)
         gx, gy = G.T @ qy, G @ qx  # sum over the other axis: (n k,) each
         out = np.empty(2 * m)
         for i in range(m):  # d rho / d w_i = qy (x) [prod_{j != i} (1 - bx_j)] db_i, and alike along y

@@ -11,7 +11,7 @@ lines' orbits under the symmetry group (``"d4"``: the square's eight symmetries 
 the two mirrors and the half turn; ``"none"``), found by mapping every line through the group.
 
 :class:`~latticeopt.density.graded.GradedSquare` is the same construction for the square pattern alone, written
-as an outer product along x and y; on the square pattern the two agree (``tests/test_density.py``).
+as an outer product along x and y; on the square pattern the two agree (``tests/test_graded_strips.py``).
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ import numpy as np
 
 from .. import _validate as v
 from ..errors import ParameterError
-from .graded import GRADED_SYMMETRIES, pool_samples
+from .graded import GRADED_SYMMETRIES, pool_samples, pool_samples_adjoint
 
 STRIP_PATTERNS = ("square", "diagonal", "triangular")
 _GROUPS = {
@@ -32,6 +32,13 @@ _GROUPS = {
                                               [[0, 1], [-1, 0]], [[-1, 0], [0, 1]], [[1, 0], [0, -1]],
                                               [[0, 1], [1, 0]], [[0, -1], [-1, 0]])],
 }
+
+
+def check_graded_pattern(pattern: str, name: str = "design.pattern") -> None:
+    """Raise :class:`ParameterError` (naming ``name``) unless ``pattern`` has straight lines to grade."""
+    if pattern not in STRIP_PATTERNS:
+        raise ParameterError(name, f"a lattice of straight lines to grade: one of {', '.join(STRIP_PATTERNS)}",
+                             pattern)
 
 
 def _canonical(normal: np.ndarray, offset: float) -> tuple[np.ndarray, float]:
@@ -94,9 +101,7 @@ class GradedStrips:
         from .. import layout
 
         set_ = object.__setattr__
-        if self.design.pattern not in STRIP_PATTERNS:
-            raise ParameterError("design.pattern", f"a graded straight-line lattice: one of {STRIP_PATTERNS}",
-                                 self.design.pattern)
+        check_graded_pattern(self.design.pattern)
         set_(self, "symmetry", v.choice("symmetry", self.symmetry, GRADED_SYMMETRIES))
         set_(self, "smoothing_mm", v.real("smoothing_mm", self.smoothing_mm, lo=0.0, lo_open=True, hi=10.0))
         set_(self, "samples", v.integer("samples", self.samples, lo=1, hi=16))
@@ -142,21 +147,18 @@ class GradedStrips:
         before = np.cumprod(np.concatenate([np.ones_like(q[:1]), q[:-1]]), axis=0)
         after = np.cumprod(np.concatenate([np.ones_like(q[:1]), q[::-1][:-1]]), axis=0)[::-1]
         k = self.samples
-        G = np.repeat(np.repeat(np.asarray(grad_density, dtype=float), k, axis=0), k, axis=1) / k ** 2
+        G = pool_samples_adjoint(grad_density, k)
         per_line = np.einsum("yx,iyx->i", G * (1.0 - self._lead), before * after * db)
         return np.bincount(self.group, per_line, minlength=self.n_variables)
 
     def _geometry(self, w: np.ndarray):
         import shapely
 
+        from ..layout import line_strip
+
         L = self.design.size_mm
         c = np.array([L / 2, L / 2])
-        strips = []
-        for nrm, off, wi in zip(self.normals, self.offsets_mm, w):
-            t = np.array([-nrm[1], nrm[0]])
-            a, e = c + off * nrm - L * t, c + off * nrm + L * t
-            h = nrm * wi / 2
-            strips.append(shapely.Polygon([a - h, e - h, e + h, a + h]))
+        strips = [line_strip(nrm, off, c, wi / 2, L) for nrm, off, wi in zip(self.normals, self.offsets_mm, w)]
         return shapely.union_all(strips).intersection(shapely.box(0.0, 0.0, L, L))
 
     def polygons(self, x: np.ndarray):

@@ -110,11 +110,9 @@ def freeform_from_dict(raw: Mapping, source: str, overridden: Mapping[str, str] 
     except TypeError as exc:
         raise ParameterError(name(kind), "keys of the right types", str(exc)) from None
     if kind == "graded":
-        from ..density.graded_strips import STRIP_PATTERNS
+        from ..density.graded_strips import check_graded_pattern
 
-        if design.pattern not in STRIP_PATTERNS:
-            raise ParameterError(name("design.pattern"), f"a lattice of straight lines to grade: one of "
-                                 f"{', '.join(STRIP_PATTERNS)}", design.pattern)
+        check_graded_pattern(design.pattern, name("design.pattern"))
     if config.probes_on:
         from .probes import ProbeGrid
 
