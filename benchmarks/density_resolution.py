@@ -47,11 +47,12 @@ def main(argv=None) -> None:
     for path in args.layout or LAYOUTS:
         design = design_from_table({"thickness_mm": 3.0, "layout": path})
         rho = density_of_design(design, args.cells)
+        probes = ProbeGrid(design, cfg)
         for p in laws:
             model = DensityModel(design, args.cells, MeshSettings(size_mm=args.mesh),
                                  law=InterpolationLaw(conductivity_exponent=p))
             t0 = time.perf_counter()
-            pe = ProbeGrid(design, cfg).solve(model, rho, gradient=False, jobs=args.jobs)
+            pe = probes.solve(model, rho, gradient=False, jobs=args.jobs)
             v = pe.v_rel
             print(f"{os.path.basename(path)} | {p:g} | {pe.uniformity:.4f} | {pe.worst_to_best:.4f} | {v.mean():.4f} | "
                   f"{v.min():.4f}-{v.max():.4f} | {pe.solved} | {time.perf_counter() - t0:.0f}", flush=True)
@@ -59,7 +60,7 @@ def main(argv=None) -> None:
             cells, mesh = spec.split(":")
             t0 = time.perf_counter()
             model = DensityModel(design, int(cells), MeshSettings(size_mm=float(mesh)))
-            corner = ProbeGrid(design, cfg).touches[0]
+            corner = probes.touches[0]
             ev = model.evaluate(density_of_design(design, int(cells)), [corner], gradient=False)
             c = corner[0]
             print(f"{os.path.basename(path)}: corner probe at ({c.x_mm:.2f}, {c.y_mm:.2f}) mm on {cells} cells, "
