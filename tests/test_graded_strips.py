@@ -105,3 +105,104 @@ def test_cli_optimizes_a_graded_diagonal_lattice_and_refuses_the_honeycomb(tmp_p
     assert "--set design.pattern" in err and "square, diagonal, triangular" in err and "hexagonal" in err
     assert err.count("\n") == 1 and "Traceback" not in err and not (tmp_path / "hex").exists()
     assert main(["optimize", "studies/optimize_graded.toml", "--set", "design.pattern=hexagonal", "--dry-run"]) == 2
+
+
+# -- lines that move (graded.max_shift_mm) -------------------------------------------------------------------------
+def _moving(pattern: str, symmetry: str, n: int = 12, **kw) -> GradedStrips:
+    return GradedStrips(_design(pattern), n, symmetry, smoothing_mm=1.0, samples=2, max_shift_mm=3.0, **kw)
+
+
+@pytest.mark.parametrize("pattern,symmetry", [("square", "none"), ("square", "mirror"), ("diagonal", "d4")])
+def test_gradient_in_widths_and_shifts_matches_central_differences(pattern, symmetry):
+    param = _moving(pattern, symmetry)
+    assert param.n_shifts > 0
+    rng = np.random.default_rng(4)
+    x = np.r_[rng.uniform(1.5, 6.0, param.n_widths), rng.uniform(-2.5, 2.5, param.n_shifts)]
+    g = rng.normal(size=(12, 12))
+    h = 1e-5
+    fd = [(np.sum(g * param.density(x + h * e)) - np.sum(g * param.density(x - h * e))) / (2 * h)
+          for e in np.eye(param.n_variables)]
+    assert np.allclose(param.gradient(x, None, g), fd, rtol=1e-6, atol=1e-9 * np.abs(fd).max())
+
+
+def test_without_shift_the_moving_lattice_is_the_fixed_one():
+    fixed, moving = (GradedStrips(_design("diagonal"), 12, "d4", smoothing_mm=1.0, samples=2),
+                     _moving("diagonal", "d4"))
+    w = np.random.default_rng(5).uniform(1.0, 6.0, fixed.n_variables)
+    x = np.r_[w, np.zeros(moving.n_shifts)]
+    assert np.array_equal(moving.density(x), fixed.density(w))
+    assert moving.polygons(x).symmetric_difference(fixed.polygons(w)).area < 1e-9
+
+
+@pytest.mark.parametrize("pattern", ["square", "diagonal"])
+def test_shifted_lines_keep_the_symmetry_and_the_electrodes(pattern):
+    """Shifts move an orbit's lines as the group maps them: the layout stays D4-symmetric; lines that carry an
+    electrode stay, so every electrode keeps its contact; the centre line (mapped onto itself reversed) stays."""
+    from latticeopt.layout import electrode_contact_mm
+
+    param = _moving(pattern, "d4", n=20)
+    x = np.r_[np.full(param.n_widths, 2.0), np.full(param.n_shifts, 2.5)]
+    rho = param.density(x)
+    for image in (rho.T, rho[::-1], rho[:, ::-1], np.rot90(rho)):
+        assert np.allclose(image, rho, atol=1e-12)
+    assert np.abs(param.shifts(x)).max() == 2.5
+    assert np.all(param.shifts(x)[np.abs(param.offsets_mm) < 1e-9] == 0)
+    # at the narrowest width (the leads'), every electrode still has at least half that width on hydrogel
+    narrow = np.r_[np.full(param.n_widths, 1.0), np.full(param.n_shifts, 2.5)]
+    assert (electrode_contact_mm(param.polygons(narrow), _design(pattern).electrodes()) >= 0.5).all()
+
+
+def test_island_constraints_are_the_gaps_between_the_exact_strips():
+    """The smallest slack of ``A x <= b`` is the narrowest gap between neighbouring parallel strips (measured
+    on the shapely rectangles) less the island width."""
+    import shapely
+
+    from latticeopt.layout import line_strip
+
+    param = _moving("square", "none")
+    A, b = param.island_constraints(2.0)
+    rng = np.random.default_rng(6)
+    for _ in range(5):
+        x = np.r_[rng.uniform(1.0, 6.0, param.n_widths), rng.uniform(-3.0, 3.0, param.n_shifts)]
+        offsets, w = param.offsets_mm + param.shifts(x), param.widths(x)
+        gaps = []
+        for i in range(len(w)):
+            for j in range(len(w)):
+                parallel = np.allclose(param.normals[i], param.normals[j])
+                if parallel and 0 < offsets[j] - offsets[i] < 12.5 + 6.1:  # neighbours (shifts < pitch / 2)
+                    si, sj = (line_strip(param.normals[k], offsets[k], np.array([50.0, 50.0]), w[k] / 2, 100.0)
+                              for k in (i, j))
+                    gaps.append(shapely.distance(si, sj) if not si.intersects(sj) else -shapely.intersection(
+                        si, sj).area / 200.0)
+        assert np.isclose(np.min(b - A @ x), min(gaps) - 2.0, atol=1e-9)
+
+
+def test_cli_moves_the_lines_of_a_square_lattice_and_refuses_moving_triangles(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(ROOT)
+    out = tmp_path / "moving"
+    assert main(["optimize", "studies/optimize_graded.toml", "--out", str(out), "--set", "graded.max_shift_mm=3",
+                 "--set", "graded.symmetry=mirror", *SMALL]) == 0
+    widths = json.loads((out / "widths.json").read_text())
+    shifts = np.array([line["shift_mm"] for line in widths["lines"]])
+    assert len(widths["variables_mm"]) == 10 and np.abs(shifts).max() <= 3.0 + 1e-9
+    assert "line shifts (mm, within +-3)" in (out / "report.txt").read_text()
+    assert main(["mesh", "--layout", str(out / "layout.geojson"), "--mesh-size", "6", "--json"]) == 0
+    capsys.readouterr()
+    for bad, says in (("design.pattern=triangular", "0 for the triangular pattern"),
+                      ("graded.max_shift_mm=7", "at most half the pitch (6.25 mm)")):
+        args = ["--set", bad] + (["--set", "graded.max_shift_mm=3"] if "triangular" in bad else [])
+        assert main(["optimize", "studies/optimize_graded.toml", *args, "--dry-run"]) == 2
+        err = capsys.readouterr().err
+        assert "--set graded.max_shift_mm" in err and says in err and err.count("\n") == 1
+
+
+def test_lines_on_the_pitch_keep_the_identity_of_runs_stored_before_shifts_existed():
+    from latticeopt.coupled import PhysicsSettings
+    from latticeopt.mesh import MeshSettings
+    from latticeopt.optimize.graded import GradedConfig
+    from latticeopt.optimize.identity import run_identity
+
+    ident = run_identity(_design("square"), [], MeshSettings(), PhysicsSettings(), GradedConfig())
+    assert "max_shift_mm" not in ident["config"] and "min_island_mm" in ident["config"]
+    moved = run_identity(_design("square"), [], MeshSettings(), PhysicsSettings(), GradedConfig(max_shift_mm=2.0))
+    assert moved["config"]["max_shift_mm"] == 2.0

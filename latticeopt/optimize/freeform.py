@@ -195,11 +195,12 @@ def run_freeform(design, phantoms: list, mesh_settings, physics, cfg: FreeformCo
 
 def optimize_density(design, phantoms: list, mesh_settings, physics, cfg, param, x0: np.ndarray, lower: np.ndarray,
                      upper: np.ndarray, out_dir, progress: Callable[[str], None] | None = print, isolation_param=None,
-                     jobs: int = 1):
+                     jobs: int = 1, linear_constraints: tuple | None = None):
     """The resumable MMA loop over a density parametrization ``param`` (``n_variables``, ``density(x, beta)``,
     ``gradient(x, beta, d_rho)``): stages ``cfg.betas`` of ``cfg.iterations_per_beta`` iterations, the hydrogel
     fraction bounds, stretch cap and isolation bound of ``cfg`` as constraints (the last on ``isolation_param``'s
-    layout, default ``param``'s, at ``cfg.isolation_sharpness(beta)``); ``jobs`` worker processes press the phantoms
+    layout, default ``param``'s, at ``cfg.isolation_sharpness(beta)``) and ``linear_constraints`` ``(A, b)``,
+    ``A x <= b``, if given; ``jobs`` worker processes press the phantoms
     and probes of each iterate. Returns ``(x, history, density, v_rel)``, the last two of the final layout (read
     from ``final.json`` when a finished run is run again)."""
     import nlopt
@@ -349,6 +350,15 @@ def optimize_density(design, phantoms: list, mesh_settings, physics, cfg, param,
             opt.add_inequality_constraint(isolation_cap, 1e-3)
         if cfg.min_uniformity is not None:
             opt.add_inequality_constraint(uniformity_constraint(evaluate, ff, beta, cfg.min_uniformity), FLOOR_TOL)
+        if linear_constraints is not None and len(linear_constraints[1]):
+            A, b = linear_constraints
+
+            def linear(result, xv, grad, A=A, b=b):
+                result[:] = A @ xv - b
+                if grad.size:
+                    grad[:] = A
+
+            opt.add_inequality_mconstraint(linear, np.full(len(b), 1e-6))
         opt.set_maxeval(remaining)
         opt.set_xtol_rel(1e-6)  # MMA parked on its bounds otherwise repeats the same point until maxeval
         try:

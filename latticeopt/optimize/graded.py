@@ -5,7 +5,10 @@ triangular pattern, maximized by MMA with adjoint gradients through the lines' s
 A ``kind = "graded"`` study (``studies/optimize_graded.toml``) shares the free-form studies' tables and loop
 (:func:`~latticeopt.optimize.freeform.optimize_density`: resumable, a line per evaluation, the hydrogel fraction
 bounds and the stretch cap as constraints); the fabrication limits are bounds: every channel at least
-``min_width_mm``, every island at least ``min_island_mm`` (:func:`max_width_mm`). The outline it writes is exact
+``min_width_mm``, every island at least ``min_island_mm`` (:func:`max_width_mm`). With ``max_shift_mm > 0`` the
+lines' positions are variables too (square and diagonal patterns, through
+:class:`~latticeopt.density.graded_strips.GradedStrips`), and the islands between neighbouring parallel lines
+become linear constraints on widths and shifts. The outline it writes is exact
 (the union of the channel strips, and for the slanted patterns the leads to electrodes the lines miss): the grid
 mesher meshes a square one exactly, the extruded mesher a slanted one.
 """
@@ -37,6 +40,7 @@ class GradedConfig(DensityStudyConfig):
     smoothing_mm: float = 0.5
     samples: int = 4
     iterations: int = 20
+    max_shift_mm: float = 0.0
 
     # the shared loop's view: one stage
     betas: ClassVar[tuple] = (1.0,)
@@ -53,18 +57,24 @@ class GradedConfig(DensityStudyConfig):
         set_(self, "smoothing_mm", v.real("graded.smoothing_mm", self.smoothing_mm, lo=0.0, lo_open=True, hi=10.0))
         set_(self, "samples", v.integer("graded.samples", self.samples, lo=1, hi=16))
         set_(self, "iterations", v.integer("graded.iterations", self.iterations, lo=1, hi=1000))
+        set_(self, "max_shift_mm", v.real("graded.max_shift_mm", self.max_shift_mm, lo=0.0, hi=25.0))
 
 
 def graded_parametrization(design, cfg: GradedConfig):
     """The design's lattice with a width per line orbit: :class:`~latticeopt.density.graded.GradedSquare` for the
     square pattern, :class:`~latticeopt.density.graded_strips.GradedStrips` (leads laid at ``min_width_mm``) for
-    the diagonal and triangular ones; any other pattern is refused."""
+    the diagonal and triangular ones and for lines that move (``max_shift_mm > 0``); any other pattern is
+    refused."""
     from ..density.graded import GradedSquare
     from ..density.graded_strips import GradedStrips
 
-    if design.pattern == "square":
+    if design.pattern == "square" and cfg.max_shift_mm == 0:
         return GradedSquare(design, cfg.cells, cfg.symmetry, cfg.smoothing_mm, cfg.samples)
-    return GradedStrips(design, cfg.cells, cfg.symmetry, cfg.smoothing_mm, cfg.samples, cfg.min_width_mm)
+    try:
+        return GradedStrips(design, cfg.cells, cfg.symmetry, cfg.smoothing_mm, cfg.samples, cfg.min_width_mm,
+                            cfg.max_shift_mm)
+    except ParameterError as exc:
+        raise ParameterError(f"graded.{exc.name}", exc.expected, exc.got) from None
 
 
 def max_width_mm(design, cfg: GradedConfig) -> float:
@@ -78,7 +88,7 @@ def max_width_mm(design, cfg: GradedConfig) -> float:
 def _widths_table(design, param, x: np.ndarray, cfg: GradedConfig) -> tuple[dict, list[str]]:
     """``widths.json`` and the report's lines on the widths."""
     widths = param.widths(x)
-    if design.pattern == "square":
+    if not hasattr(param, "normals"):  # the square lattice's outer-product form
         m = len(param.lines_mm)
         table = {"lines_mm": param.lines_mm.tolist(), "widths_along_y_mm": widths[:m].tolist(),
                  "widths_along_x_mm": widths[m:].tolist(), "variables_mm": x.tolist(), "symmetry": cfg.symmetry}
@@ -87,15 +97,21 @@ def _widths_table(design, param, x: np.ndarray, cfg: GradedConfig) -> tuple[dict
                        + ", ".join(f"{w:.3f}" for w in widths[:m]) + "; along x "
                        + ", ".join(f"{w:.3f}" for w in widths[m:])]
     angles = np.degrees(np.arctan2(param.normals[:, 1], param.normals[:, 0]))
+    shifts = param.shifts(x)
     table = {"pattern": design.pattern, "lines": [
-        {"normal_deg": float(a), "offset_mm": float(o), "width_mm": float(w), "orbit": int(g)}
-        for a, o, w, g in zip(angles, param.offsets_mm, widths, param.group)],
+        {"normal_deg": float(a), "offset_mm": float(o + d), "shift_mm": float(d), "width_mm": float(w),
+         "orbit": int(g)} for a, o, d, w, g in zip(angles, param.offsets_mm, shifts, widths, param.group)],
         "variables_mm": x.tolist(), "symmetry": cfg.symmetry, "leads_area_mm2": float(param.leads.area)}
-    return table, [f"graded {design.pattern} lattice: pitch {design.pitch_mm:g} mm, {len(widths)} lines in "
-                   f"{param.n_variables} orbits ({cfg.symmetry}), widths by orbit (mm): "
-                   + ", ".join(f"{w:.3f}" for w in x)
-                   + (f"; leads to electrodes the lines miss: {param.leads.area:.1f} mm^2" if param.leads.area
-                      else "")]
+    nw = param.n_widths
+    lines = [f"graded {design.pattern} lattice: pitch {design.pitch_mm:g} mm, {len(widths)} lines in "
+             f"{nw} orbits ({cfg.symmetry}), widths by orbit (mm): " + ", ".join(f"{w:.3f}" for w in x[:nw])
+             + (f"; leads to electrodes the lines miss: {param.leads.area:.1f} mm^2" if param.leads.area else "")]
+    if param.n_shifts:
+        moved = sorted({int(g) for g in param.group[param.shift_group >= 0]})
+        lines.append(f"line shifts (mm, within +-{cfg.max_shift_mm:g}) of the orbits that may move ("
+                     + ", ".join(str(g) for g in moved) + "): " + ", ".join(f"{d:+.3f}" for d in x[nw:])
+                     + "; the others carry an electrode or a lead, or are mapped onto themselves reversed")
+    return table, lines
 
 
 def run_graded(design, phantoms: list, mesh_settings, physics, cfg: GradedConfig, out_dir,
@@ -108,13 +124,17 @@ def run_graded(design, phantoms: list, mesh_settings, physics, cfg: GradedConfig
     if upper_w < max(cfg.min_width_mm, cfg.start_width_mm):
         raise ParameterError("graded.min_island_mm", f"room for a channel of at least start_width_mm "
                              f"{cfg.start_width_mm:g} mm at pitch {design.pitch_mm:g} mm", cfg.min_island_mm)
-    n = param.n_variables
-    x, history, rho, v_rel = optimize_density(design, phantoms, mesh_settings, physics, cfg, param,
-                                              np.full(n, cfg.start_width_mm), np.full(n, cfg.min_width_mm),
-                                              np.full(n, upper_w), out_dir, progress, jobs=jobs)
+    n_w = getattr(param, "n_widths", param.n_variables)
+    lower, upper = (param.bounds(cfg.min_width_mm, upper_w) if n_w < param.n_variables
+                    else (np.full(n_w, cfg.min_width_mm), np.full(n_w, upper_w)))
+    x0 = np.r_[np.full(n_w, cfg.start_width_mm), np.zeros(param.n_variables - n_w)]
+    islands = param.island_constraints(cfg.min_island_mm) if n_w < param.n_variables else None
+    x, history, rho, v_rel = optimize_density(design, phantoms, mesh_settings, physics, cfg, param, x0, lower,
+                                              upper, out_dir, progress, jobs=jobs, linear_constraints=islands)
     table, lines = _widths_table(design, param, x, cfg)
     lines.append(f"fabrication bounds: {cfg.min_width_mm:g} <= w <= {upper_w:g} mm (islands >= "
-                 f"{cfg.min_island_mm:g} mm)")
+                 f"{cfg.min_island_mm:g} mm" + (f", also between lines that moved: {len(islands[1])} linear "
+                                                "constraints)" if islands is not None else ")"))
     out = Path(out_dir)
     (out / "widths.json").write_text(json.dumps(table, indent=1))
     files = write_outputs(design, rho, cfg, out, history, geometry=param.polygons(x), extra_lines=lines)

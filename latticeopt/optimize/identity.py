@@ -23,6 +23,10 @@ def stored_final(path: Path, identity: dict, x: np.ndarray) -> dict | None:
     return final if same_point and same_run(final.get("identity"), identity) else None
 
 
+#: Keys added after runs were stored, at values that leave a run as it was: left out of the identity at those
+#: values, so such a run still resumes (the probe grid's keys and the graded lines' shift).
+NEUTRAL_DEFAULTS = {**PROBE_DEFAULTS, "max_shift_mm": 0.0}
+
 #: Keys that only shape the outline written at the end, never an iterate: a finished run re-run with other values
 #: writes its outputs again instead of refusing the folder.
 OUTLINE_KEYS = ("threshold", "smooth_mm")
@@ -31,10 +35,10 @@ OUTLINE_KEYS = ("threshold", "smooth_mm")
 def run_identity(design, phantoms: list, mesh_settings, physics, cfg) -> dict:
     """What a run folder's ``state.json`` must match to be resumed (and ``final.json`` to be reused).
 
-    Probe keys at their defaults are left out, so a run begun before they existed still resumes; so are the
+    Keys at their :data:`NEUTRAL_DEFAULTS` are left out, so a run begun before they existed still resumes; so are the
     outline keys (:data:`OUTLINE_KEYS`), compared by :func:`same_run` on neither side."""
     config = {k: val for k, val in asdict(cfg).items()
-              if k not in OUTLINE_KEYS and (k not in PROBE_DEFAULTS or val != PROBE_DEFAULTS[k])}
+              if k not in OUTLINE_KEYS and (k not in NEUTRAL_DEFAULTS or val != NEUTRAL_DEFAULTS[k])}
     return json.loads(json.dumps({
         "config": config, "design": design.as_dict(), "mesh": mesh_settings.as_dict(),
         "physics": physics.as_dict(), "phantoms": [[t.as_dict() for t in p] for p in phantoms]}))
