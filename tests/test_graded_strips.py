@@ -134,22 +134,29 @@ def test_without_shift_the_moving_lattice_is_the_fixed_one():
     assert moving.polygons(x).symmetric_difference(fixed.polygons(w)).area < 1e-9
 
 
-@pytest.mark.parametrize("pattern", ["square", "diagonal"])
-def test_shifted_lines_keep_the_symmetry_and_the_electrodes(pattern):
+@pytest.mark.parametrize("pattern,pitch_mm", [("square", 12.5), ("diagonal", 12.5), ("square", 10.0),
+                                              ("diagonal", 10.0)])
+def test_shifted_lines_keep_the_symmetry_and_the_electrodes(pattern, pitch_mm):
     """Shifts move an orbit's lines as the group maps them: the layout stays D4-symmetric; lines that carry an
-    electrode stay, so every electrode keeps its contact; the centre line (mapped onto itself reversed) stays."""
+    electrode or a lead stay, so every electrode keeps its contact and the layout stays in one piece; the centre
+    lines (mapped onto themselves reversed) stay. At pitch 10 mm the lines miss electrodes and leads join them."""
     from latticeopt.layout import electrode_contact_mm
 
-    param = _moving(pattern, "d4", n=20)
+    design = LatticeDesign(thickness_mm=3.0, pattern=pattern, pitch_mm=pitch_mm)
+    param = GradedStrips(design, 20, "d4", smoothing_mm=1.0, samples=2, max_shift_mm=3.0)
+    assert param.n_shifts > 0 and (pitch_mm == 12.5 or param.leads.area > 0)
     x = np.r_[np.full(param.n_widths, 2.0), np.full(param.n_shifts, 2.5)]
     rho = param.density(x)
     for image in (rho.T, rho[::-1], rho[:, ::-1], np.rot90(rho)):
         assert np.allclose(image, rho, atol=1e-12)
     assert np.abs(param.shifts(x)).max() == 2.5
     assert np.all(param.shifts(x)[np.abs(param.offsets_mm) < 1e-9] == 0)
-    # at the narrowest width (the leads'), every electrode still has at least half that width on hydrogel
+    # at the narrowest width (the leads'), every electrode still has at least half that width on hydrogel, and the
+    # hydrogel is one piece
     narrow = np.r_[np.full(param.n_widths, 1.0), np.full(param.n_shifts, 2.5)]
-    assert (electrode_contact_mm(param.polygons(narrow), _design(pattern).electrodes()) >= 0.5).all()
+    geom = param.polygons(narrow)
+    assert (electrode_contact_mm(geom, design.electrodes()) >= 0.5).all()
+    assert len(getattr(geom, "geoms", [geom])) == 1
 
 
 def test_island_constraints_are_the_gaps_between_the_exact_strips():

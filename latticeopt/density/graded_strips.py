@@ -167,7 +167,8 @@ class GradedStrips:
         if self.max_shift_mm > 0:
             c, ends = np.array([L / 2, L / 2]), shapely.MultiLineString(layout.electrode_segments(
                 self.design.electrodes()))
-            fixed = [strip.intersection(ends).length > 0 or strip.intersection(leads).area > 0
+            # a lead ends on its line's edge (the leads are what the thin lines leave of the joined layout)
+            fixed = [strip.intersection(ends).length > 0 or (not leads.is_empty and strip.distance(leads) < 1e-9)
                      for strip in (layout.line_strip(nrm, off, c, self.lead_width_mm / 2, L)
                                    for nrm, off in zip(normals, offsets))]
             sg, sign = shift_orbits(normals, offsets, self.group, self.symmetry, np.array(fixed))

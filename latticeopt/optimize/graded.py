@@ -16,6 +16,7 @@ mesher meshes a square one exactly, the extruded mesher a slanted one.
 from __future__ import annotations
 
 import json
+import logging
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,6 +28,8 @@ from .. import _validate as v
 from ..errors import ParameterError
 from .freeform import DensityStudyConfig, FreeformResult, optimize_density, warn_if_unresolved
 from .layout_outputs import write_outputs
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -111,6 +114,9 @@ def _widths_table(design, param, x: np.ndarray, cfg: GradedConfig) -> tuple[dict
         lines.append(f"line shifts (mm, within +-{cfg.max_shift_mm:g}) of the orbits that may move ("
                      + ", ".join(str(g) for g in moved) + "): " + ", ".join(f"{d:+.3f}" for d in x[nw:])
                      + "; the others carry an electrode or a lead, or are mapped onto themselves reversed")
+    elif cfg.max_shift_mm:
+        lines.append(f"no line may move (max_shift_mm {cfg.max_shift_mm:g}): every orbit carries an electrode or a "
+                     "lead, or is mapped onto itself reversed")
     return table, lines
 
 
@@ -125,6 +131,9 @@ def run_graded(design, phantoms: list, mesh_settings, physics, cfg: GradedConfig
         raise ParameterError("graded.min_island_mm", f"room for a channel of at least start_width_mm "
                              f"{cfg.start_width_mm:g} mm at pitch {design.pitch_mm:g} mm", cfg.min_island_mm)
     n_w = getattr(param, "n_widths", param.n_variables)
+    if cfg.max_shift_mm and n_w == param.n_variables:
+        log.warning("graded.max_shift_mm = %g, but no line may move: every orbit of lines carries an electrode or a "
+                    "lead, or is mapped onto itself reversed (%s symmetry)", cfg.max_shift_mm, cfg.symmetry)
     lower, upper = (param.bounds(cfg.min_width_mm, upper_w) if n_w < param.n_variables
                     else (np.full(n_w, cfg.min_width_mm), np.full(n_w, upper_w)))
     x0 = np.r_[np.full(n_w, cfg.start_width_mm), np.zeros(param.n_variables - n_w)]
