@@ -47,6 +47,7 @@ OUTLINES = {
     "graded_d4_t3.geojson": ("other", "graded, 1 mm mould"),
     "freeform_d4_t3_30.geojson": ("other", "free-form"),
     "graded_diagonal_d4_t3.geojson": ("other", "graded diagonal, 4 mm mould"),
+    "graded_shift_d4_t3.geojson": ("other", "graded, lines moved, 4 mm mould"),
 }
 
 
@@ -84,23 +85,38 @@ def paired(a: dict, b: dict) -> tuple[float, float, int]:
     return float(d.mean()), float(d.std(ddof=1) / math.sqrt(len(d))), len(d)
 
 
+#: Further pairs printed under the table: outline -> the outline it was optimized from.
+ALSO_AGAINST = {"graded_shift_d4_t3.geojson": "front_free_d4_t3.geojson"}
+
+
 def table(scores: dict[str, dict]) -> list[str]:
-    """Markdown rows: each front point against the square lattice of the nearest gel fraction and against w = 4
-    (its minimum feature)."""
-    squares = {f: s for f, s in scores.items() if OUTLINES[f][1].startswith("square")}
-    lines = ["| point (gel fraction) | held-out mean V_rel ± SE | uniformity | worst-to-best "
-             "| minus the square lattice of its gel fraction | minus square w = 4 |", "|---|---|---|---|---|---|"]
+    """Markdown rows: each front point and other optimized outline against the lattice of its family (square, or
+    diagonal for a diagonal outline) of the nearest gel fraction and against its family's w = 4 (the 4 mm mould's
+    minimum feature), then the pairs of :data:`ALSO_AGAINST`."""
+    lines = ["| outline (gel fraction) | held-out mean V_rel ± SE | uniformity | worst-to-best "
+             "| minus the lattice of its gel fraction | minus the lattice w = 4 |", "|---|---|---|---|---|---|"]
     for f, s in scores.items():
-        if OUTLINES[f][0] != "front":
+        if OUTLINES[f][0] == "reference":
             continue
-        near = min(squares, key=lambda g: abs(squares[g]["gel"] - s["gel"]))
+        family = "diagonal" if "diagonal" in f else "square"
+        refs = {g: r for g, r in scores.items() if OUTLINES[g][0] == "reference" and OUTLINES[g][1].startswith(family)}
+        near = min(refs, key=lambda g: abs(refs[g]["gel"] - s["gel"]))
         cells = []
-        for ref in (near, "square_w4.geojson"):
-            d, se, _ = paired(s, squares[ref])
-            cells.append(f"{d:+.4f} ± {se:.4f} ({100 * d / squares[ref]['v_rel']:+.0f} %, "
-                         f"{OUTLINES[ref][1]}, {squares[ref]['gel']:.2f})")
+        for ref in (near, f"{family}_w4.geojson"):
+            if ref not in scores:
+                cells.append("not scored")
+                continue
+            d, se, _ = paired(s, scores[ref])
+            cells.append(f"{d:+.4f} ± {se:.4f} ({100 * d / scores[ref]['v_rel']:+.0f} %, "
+                         f"{OUTLINES[ref][1]}, {scores[ref]['gel']:.2f})")
         lines.append(f"| {OUTLINES[f][1]} ({s['gel']:.2f}) | {s['v_rel']:.4f} ± {s['se']:.4f} "
                      f"| {s['uniformity']:.3f} | {s['worst_to_best']:.3f} | {cells[0]} | {cells[1]} |")
+    for f, g in ALSO_AGAINST.items():
+        if f in scores and g in scores:
+            d, se, _ = paired(scores[f], scores[g])
+            lines.append(f"{OUTLINES[f][1]} minus {OUTLINES[g][1]}: {d:+.4f} ± {se:.4f} "
+                         f"({100 * d / scores[g]['v_rel']:+.1f} %), uniformity {scores[f]['uniformity']:.3f} "
+                         f"against {scores[g]['uniformity']:.3f}")
     return lines
 
 

@@ -80,9 +80,10 @@ def test_the_exact_front_pairs_each_point_with_the_nearest_square_lattice(tmp_pa
     spec = importlib.util.spec_from_file_location("front_exact", ROOT / "docs" / "plot_front_exact.py")
     fe = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(fe)
-    files = ["front_free_d4_t3.geojson", "square_w4.geojson", "square_w6.geojson"]
+    files = ["front_free_d4_t3.geojson", "square_w4.geojson", "square_w6.geojson", "graded_shift_d4_t3.geojson"]
     v = {"front_free_d4_t3.geojson": [0.10, 0.12, 0.14, 0.16, 0.50], "square_w4.geojson": [0.09, 0.10, 0.11, 0.12, 0.0],
-         "square_w6.geojson": [0.08, 0.09, 0.10, 0.11, 0.20]}
+         "square_w6.geojson": [0.08, 0.09, 0.10, 0.11, 0.20],
+         "graded_shift_d4_t3.geojson": [0.11, 0.12, 0.15, 0.18, 0.5]}
     held, probes = tmp_path / "held", tmp_path / "probes"
     held.mkdir(), probes.mkdir()
 
@@ -99,13 +100,15 @@ def test_the_exact_front_pairs_each_point_with_the_nearest_square_lattice(tmp_pa
     write(held / "summary.csv", [{"design_key": f, "v_rel_mean": sum(v[f][:4]) / 4, "v_rel_se": 0.01, "n_ok": 4}
                                  for f in files])
     write(probes / "summary.csv", [{"design_key": f, "design": f, "uniformity": u, "worst_to_best": 0.1}
-                                   for f, u in zip(files, (0.26, 0.22, 0.30))])
+                                   for f, u in zip(files, (0.26, 0.22, 0.30, 0.24))])
     scores = fe.collect(held, probes)
-    assert list(scores) == files and abs(scores["square_w6.geojson"]["gel"] - 0.664) < 0.002
+    assert sorted(scores) == sorted(files) and abs(scores["square_w6.geojson"]["gel"] - 0.664) < 0.002
     d, se, n = fe.paired(scores["front_free_d4_t3.geojson"], scores["square_w4.geojson"])
     # differences 0.01, 0.02, 0.03, 0.04 on the four phantoms both solved: mean 0.025, sd 0.0129, SE sd / 2
     assert n == 4 and abs(d - 0.025) < 1e-12 and abs(se - 0.012909944 / 2) < 1e-8
     row = fe.table(scores)[2]
     # the free point's 0.65 gel is nearest w = 6 (0.66), not w = 4 (0.48): differences 0.02-0.05 and 0.30, mean 0.088
     assert "square w6, 0.66" in row.split("|")[5] and "+0.0880" in row.split("|")[5]
+    # the moved-lines outline against the point it was optimized from: differences 0.01, 0, 0.01, 0.02, 0 -> 0.008
+    assert "graded, lines moved, 4 mm mould minus no floor: +0.0080" in fe.table(scores)[-1]
     assert fe.plot(scores, ["front_free_d4_t3.geojson"], tmp_path / "f.png").stat().st_size > 10_000
