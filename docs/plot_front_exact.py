@@ -141,7 +141,7 @@ def plot(scores: dict[str, dict], best: list[str], path: Path) -> Path:
     ax.set_xlabel("uniformity over the 7 x 7 probe grid (1 - CV of V_rel), exact mesh")
     ax.set_ylabel("mean V_rel over 100 held-out presses (± SE, unpaired), exact mesh")
     ax.set_title("graded lattices with a 4 mm mould (black; u = their uniformity floor in the density model)\n"
-                 "against square lattices (w in mm), t = 3 mm, 2 mm mesh", fontsize=8)
+                 "against square and diagonal lattices (w in mm), t = 3 mm, 2 mm mesh", fontsize=8)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7)
     for i, f in enumerate(best):

@@ -158,14 +158,14 @@ def _lattice(pattern: str, size_mm: float, width_mm: float, pitch_mm: float, rim
     return shapely.union_all(pieces)
 
 
-def _honeycomb(centre: np.ndarray, pitch: float, half_w: float, reach: float) -> list:
-    """Rectangles (flat ends) around every edge of the honeycomb whose cells are ``pitch`` apart.
+def honeycomb_segments(centre: np.ndarray, pitch: float, reach: float) -> np.ndarray:
+    """The edges of the honeycomb whose cells are ``pitch`` apart, one cell centred on ``centre``, covering a
+    square of side ``reach`` about it: shape ``(k, 2, 2)`` (edge, end, x/y; mm).
 
     Cells have vertices at 0, 60, ..., 300 degrees (flat top and bottom); flat-capped rectangles meeting at a
-    120-degree vertex cover it exactly (every direction lies within 60 degrees of an arm), so their union is
-    the mitred channel network.
+    120-degree vertex cover it exactly (every direction lies within 60 degrees of an arm), so the union of the
+    edges' rectangles is the mitred channel network.
     """
-
     R = pitch / math.sqrt(3.0)  # circumradius of a cell with flat-to-flat distance ``pitch``
     a1, a2 = np.array([0.0, pitch]), np.array([pitch * math.sqrt(3) / 2, pitch / 2])
     n = int(math.ceil(2 * reach / pitch)) + 2
@@ -176,7 +176,12 @@ def _honeycomb(centre: np.ndarray, pitch: float, half_w: float, reach: float) ->
     verts = cells[:, None, :] + R * np.stack([np.cos(ang), np.sin(ang)], axis=1)[None]
     segs = np.stack([verts, np.roll(verts, -1, axis=1)], axis=2).reshape(-1, 2, 2)
     _, first = np.unique(np.round((segs[:, 0] + segs[:, 1]) / 2, 6), axis=0, return_index=True)
-    return [_rect(a, b, half_w) for a, b in segs[first]]
+    return segs[first]
+
+
+def _honeycomb(centre: np.ndarray, pitch: float, half_w: float, reach: float) -> list:
+    """Rectangles (flat ends) around every edge of :func:`honeycomb_segments`."""
+    return [_rect(a, b, half_w) for a, b in honeycomb_segments(centre, pitch, reach)]
 
 
 @dataclass(frozen=True)

@@ -88,7 +88,8 @@ SMALL = ["--set", "mesh.size_mm=5", "--set", "graded.cells=10", "--set", "phanto
          "--set", "graded.iterations=2", "--set", "graded.min_width_mm=2"]
 
 
-def test_cli_optimizes_a_graded_diagonal_lattice_and_refuses_the_honeycomb(tmp_path, monkeypatch, capsys):
+def test_cli_optimizes_a_graded_diagonal_lattice_and_refuses_a_quarter_turn_of_the_honeycomb(tmp_path, monkeypatch,
+                                                                                           capsys):
     monkeypatch.chdir(ROOT)
     out = tmp_path / "diag"
     assert main(["optimize", "studies/optimize_graded.toml", "--out", str(out), "--set", "design.pattern=diagonal",
@@ -100,9 +101,9 @@ def test_cli_optimizes_a_graded_diagonal_lattice_and_refuses_the_honeycomb(tmp_p
     assert main(["mesh", "--layout", str(out / "layout.geojson"), "--mesh-size", "6", "--json"]) == 0
     capsys.readouterr()
     assert main(["optimize", "studies/optimize_graded.toml", "--out", str(tmp_path / "hex"),
-                 "--set", "design.pattern=hexagonal", *SMALL]) == 2
+                 "--set", "design.pattern=hexagonal", *SMALL]) == 2  # the study's symmetry is d4
     err = capsys.readouterr().err
-    assert "--set design.pattern" in err and "square, diagonal, triangular" in err and "hexagonal" in err
+    assert "graded.symmetry" in err and "'mirror' or 'none' for the hexagonal pattern" in err and "'d4'" in err
     assert err.count("\n") == 1 and "Traceback" not in err and not (tmp_path / "hex").exists()
     assert main(["optimize", "studies/optimize_graded.toml", "--set", "design.pattern=hexagonal", "--dry-run"]) == 2
 

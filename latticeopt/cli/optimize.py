@@ -134,11 +134,13 @@ def _run_density_study(args: argparse.Namespace, raw: dict, keys: list) -> int:
     if cfg.front:
         return _run_density_front(args, study, out, jobs)
     if args.dry_run:
+        channel = "edge" if study.design.pattern == "hexagonal" else "line"
         layout = (f"{cfg.cells} x {cfg.cells} cells, minimum feature {cfg.min_feature_mm:g} mm, beta "
                   f"{list(cfg.betas)} x {cfg.iterations_per_beta} iterations" if study.kind == "freeform" else
-                  f"a width per line of pitch {study.design.pitch_mm:g} mm ({cfg.min_width_mm:g} mm <= w, islands >= "
-                  f"{cfg.min_island_mm:g} mm)" + (f", lines moving up to {cfg.max_shift_mm:g} mm" if cfg.max_shift_mm
-                                                   else "") + f", {cfg.iterations} iterations")
+                  f"a width per {channel} of pitch {study.design.pitch_mm:g} mm ({cfg.min_width_mm:g} mm <= w, "
+                  f"islands >= {cfg.min_island_mm:g} mm)"
+                  + (f", lines moving up to {cfg.max_shift_mm:g} mm" if cfg.max_shift_mm else "")
+                  + f", {cfg.iterations} iterations")
         probes = (f"; uniformity >= {cfg.min_uniformity:g}" if cfg.min_uniformity is not None else "") + (
             f"; probes {cfg.probe_grid} x {cfg.probe_grid}" if cfg.probes_on else "")
         print(f"{study.name} ({study.kind}): maximize mean V_rel over {len(study.phantoms)} phantoms; {layout}; "

@@ -32,6 +32,20 @@ def pool_samples_adjoint(grad_density: np.ndarray, k: int) -> np.ndarray:
     return np.repeat(np.repeat(np.asarray(grad_density, dtype=float), k, axis=0), k, axis=1) / k ** 2
 
 
+def band_union(b: np.ndarray, lead: np.ndarray) -> np.ndarray:
+    """The union ``1 - (1 - lead) prod_i (1 - b_i)`` of bands ``b`` (``(m, ...)``) and a fixed field ``lead``."""
+    return 1.0 - (1.0 - lead) * np.prod(1.0 - b, axis=0)
+
+
+def band_union_adjoint(b: np.ndarray, lead: np.ndarray, grad_field: np.ndarray) -> np.ndarray:
+    """``d f / d b_i`` of :func:`band_union` from ``d f / d union`` (``grad_field``): shape of ``b``. The product
+    of every other band's ``1 - b_j`` is taken by prefix and suffix products (no division by ``1 - b_i``)."""
+    q = 1.0 - b
+    before = np.cumprod(np.concatenate([np.ones_like(q[:1]), q[:-1]]), axis=0)
+    after = np.cumprod(np.concatenate([np.ones_like(q[:1]), q[::-1][:-1]]), axis=0)[::-1]
+    return grad_field * (1.0 - lead) * before * after
+
+
 @dataclass(frozen=True, eq=False)
 class GradedSquare:
     """Per-line widths of the square lattice -> density layout (module docstring).

@@ -22,10 +22,10 @@ import numpy as np
 
 from .. import _validate as v
 from ..errors import ParameterError
-from .graded import GRADED_SYMMETRIES, pool_samples, pool_samples_adjoint
+from .graded import GRADED_SYMMETRIES, band_union, band_union_adjoint, pool_samples, pool_samples_adjoint
 
 STRIP_PATTERNS = ("square", "diagonal", "triangular")
-_GROUPS = {
+SYMMETRY_GROUPS = {
     "none": [np.eye(2)],
     "mirror": [np.eye(2), np.diag([-1.0, 1.0]), np.diag([1.0, -1.0]), -np.eye(2)],
     "d4": [np.array(m, dtype=float) for m in ([[1, 0], [0, 1]], [[0, -1], [1, 0]], [[-1, 0], [0, -1]],
@@ -60,7 +60,7 @@ def line_orbits(normals: np.ndarray, offsets: np.ndarray, symmetry: str, tol: fl
         return i
 
     for i in range(m):
-        for g in _GROUPS[symmetry]:
+        for g in SYMMETRY_GROUPS[symmetry]:
             gn, go = _canonical(g @ normals[i], offsets[i])
             for j in range(m):
                 if np.allclose(gn, canon[j][0], atol=tol) and abs(go - canon[j][1]) < tol * (1 + abs(go)):
@@ -81,7 +81,7 @@ def shift_orbits(normals: np.ndarray, offsets: np.ndarray, group: np.ndarray, sy
     for orbit in range(int(group.max()) + 1):
         r = int(np.flatnonzero(group == orbit)[0])
         sign[r] = 1.0
-        for g in _GROUPS[symmetry]:
+        for g in SYMMETRY_GROUPS[symmetry]:
             gn = g @ normals[r]
             for j in np.flatnonzero(group == orbit):
                 for s in (1.0, -1.0):  # n_j = s g n_r, o_j = s o_r: a shift d of line r is a shift s d of line j
@@ -99,9 +99,11 @@ def shift_orbits(normals: np.ndarray, offsets: np.ndarray, group: np.ndarray, sy
 def check_max_shift(design, max_shift_mm: float, name: str = "graded.max_shift_mm") -> None:
     """Raise :class:`ParameterError` (naming ``name``) unless the design's lines may move ``max_shift_mm``: at
     most half the pitch, and not at all in the triangular pattern."""
-    if max_shift_mm > 0 and design.pattern == "triangular":
-        raise ParameterError(name, "0 for the triangular pattern (its islands are triangles of three lines, so its "
-                             "lines stay on the pitch); line shifts need the square or diagonal pattern", max_shift_mm)
+    if max_shift_mm > 0 and design.pattern not in ("square", "diagonal"):
+        why = ("its islands are triangles of three lines, so its lines stay on the pitch" if design.pattern ==
+               "triangular" else "it has edges, not lines")
+        raise ParameterError(name, f"0 for the {design.pattern} pattern ({why}); line shifts need the square or "
+                             "diagonal pattern", max_shift_mm)
     if max_shift_mm > design.pitch_mm / 2:
         raise ParameterError(name, f"at most half the pitch ({design.pitch_mm / 2:g} mm)", max_shift_mm)
 
@@ -162,7 +164,7 @@ class GradedStrips:
         joined = layout.add_leads(thin, self.design.electrodes(), self.lead_width_mm, L)
         leads = joined.difference(thin)
         set_(self, "leads", leads)
-        set_(self, "_lead", _rasterize(leads, X + L / 2, Y + L / 2))
+        set_(self, "_lead", rasterize(leads, X + L / 2, Y + L / 2))
         sg, sign = -np.ones(len(offsets), dtype=int), np.zeros(len(offsets))
         if self.max_shift_mm > 0:
             c, ends = np.array([L / 2, L / 2]), shapely.MultiLineString(layout.electrode_segments(
@@ -234,19 +236,12 @@ class GradedStrips:
 
     def density(self, x: np.ndarray, beta: float | None = None) -> np.ndarray:
         """The ``(n, n)`` density (rows y, columns x) of the variables ``x``; ``beta`` is ignored."""
-        b = self._bands(x)[0]
-        return pool_samples(1.0 - (1.0 - self._lead) * np.prod(1.0 - b, axis=0), self.n, self.samples)
+        return pool_samples(band_union(self._bands(x)[0], self._lead), self.n, self.samples)
 
     def gradient(self, x: np.ndarray, beta: float | None, grad_density: np.ndarray) -> np.ndarray:
         """``d f / d x`` from ``d f / d rho`` (shape ``(n, n)``)."""
         b, db, db_shift = self._bands(x)
-        q = 1.0 - b
-        # the product of every other band's (1 - b_j), by prefix and suffix products (no division by 1 - b_i)
-        before = np.cumprod(np.concatenate([np.ones_like(q[:1]), q[:-1]]), axis=0)
-        after = np.cumprod(np.concatenate([np.ones_like(q[:1]), q[::-1][:-1]]), axis=0)[::-1]
-        k = self.samples
-        G = pool_samples_adjoint(grad_density, k)
-        others = G * (1.0 - self._lead) * before * after
+        others = band_union_adjoint(b, self._lead, pool_samples_adjoint(grad_density, self.samples))
         per_line = np.einsum("iyx,iyx->i", others, db)
         grad = np.bincount(self.group, per_line, minlength=self.n_widths)
         if not self.n_shifts:
@@ -273,7 +268,7 @@ class GradedStrips:
         return shapely.union_all([self._geometry(self.widths(x), self.shifts(x)), self.leads])
 
 
-def _rasterize(geom, X: np.ndarray, Y: np.ndarray) -> np.ndarray:
+def rasterize(geom, X: np.ndarray, Y: np.ndarray) -> np.ndarray:
     """1 at the sample points ``(X, Y)`` (mm) inside ``geom``, else 0."""
     import shapely
 

@@ -110,10 +110,9 @@ def freeform_from_dict(raw: Mapping, source: str, overridden: Mapping[str, str] 
     except TypeError as exc:
         raise ParameterError(name(kind), "keys of the right types", str(exc)) from None
     if kind == "graded":
-        from ..density.graded_strips import check_graded_pattern, check_max_shift
+        from .graded import check_graded_study
 
-        check_graded_pattern(design.pattern, name("design.pattern"))
-        check_max_shift(design, config.max_shift_mm, name("graded.max_shift_mm"))
+        check_graded_study(design, config, name)
     if config.probes_on:
         from .probes import ProbeGrid
 

@@ -1,6 +1,7 @@
 """Graded lattices: a channel width per line (grouped by the sensor's symmetry) of the design's square, diagonal or
-triangular pattern, maximized by MMA with adjoint gradients through the lines' smooth density
-(:class:`~latticeopt.density.graded.GradedSquare`, :class:`~latticeopt.density.graded_strips.GradedStrips`).
+triangular pattern, or per edge of its honeycomb, maximized by MMA with adjoint gradients through the channels'
+smooth density (:class:`~latticeopt.density.graded.GradedSquare`,
+:class:`~latticeopt.density.graded_strips.GradedStrips`, :class:`~latticeopt.density.graded_honeycomb.GradedHoneycomb`).
 
 A ``kind = "graded"`` study (``studies/optimize_graded.toml``) shares the free-form studies' tables and loop
 (:func:`~latticeopt.optimize.freeform.optimize_density`: resumable, a line per evaluation, the hydrogel fraction
@@ -63,16 +64,39 @@ class GradedConfig(DensityStudyConfig):
         set_(self, "max_shift_mm", v.real("graded.max_shift_mm", self.max_shift_mm, lo=0.0, hi=25.0))
 
 
+#: The patterns a graded study grades: straight-line lattices by line, the honeycomb by edge.
+GRADED_PATTERNS = ("square", "diagonal", "triangular", "hexagonal")
+
+
+def check_graded_study(design, cfg: GradedConfig, name: Callable[[str], str] = str) -> None:
+    """Raise :class:`ParameterError` (keys named through ``name``) unless the design can be graded with ``cfg``:
+    a pattern of :data:`GRADED_PATTERNS`, a symmetry the pattern has, line shifts only where lines may move."""
+    from ..density.graded_honeycomb import check_honeycomb_symmetry
+    from ..density.graded_strips import check_max_shift
+
+    if design.pattern not in GRADED_PATTERNS:
+        raise ParameterError(name("design.pattern"), "a lattice to grade: one of " + ", ".join(GRADED_PATTERNS)
+                             + " (a custom layout has no lines or edges)", design.pattern)
+    if design.pattern == "hexagonal":
+        check_honeycomb_symmetry(cfg.symmetry, name("graded.symmetry"))
+    check_max_shift(design, cfg.max_shift_mm, name("graded.max_shift_mm"))
+
+
 def graded_parametrization(design, cfg: GradedConfig):
-    """The design's lattice with a width per line orbit: :class:`~latticeopt.density.graded.GradedSquare` for the
-    square pattern, :class:`~latticeopt.density.graded_strips.GradedStrips` (leads laid at ``min_width_mm``) for
-    the diagonal and triangular ones and for lines that move (``max_shift_mm > 0``); any other pattern is
-    refused."""
+    """The design's lattice with a width per line (or edge) orbit: :class:`~latticeopt.density.graded.GradedSquare`
+    for the square pattern, :class:`~latticeopt.density.graded_strips.GradedStrips` (leads laid at
+    ``min_width_mm``) for the diagonal and triangular ones and for lines that move (``max_shift_mm > 0``),
+    :class:`~latticeopt.density.graded_honeycomb.GradedHoneycomb` for the hexagonal one; anything else is refused
+    (:func:`check_graded_study`)."""
     from ..density.graded import GradedSquare
+    from ..density.graded_honeycomb import GradedHoneycomb
     from ..density.graded_strips import GradedStrips
 
+    check_graded_study(design, cfg)
     if design.pattern == "square" and cfg.max_shift_mm == 0:
         return GradedSquare(design, cfg.cells, cfg.symmetry, cfg.smoothing_mm, cfg.samples)
+    if design.pattern == "hexagonal":
+        return GradedHoneycomb(design, cfg.cells, cfg.symmetry, cfg.smoothing_mm, cfg.samples, cfg.min_width_mm)
     try:
         return GradedStrips(design, cfg.cells, cfg.symmetry, cfg.smoothing_mm, cfg.samples, cfg.min_width_mm,
                             cfg.max_shift_mm)
@@ -91,6 +115,15 @@ def max_width_mm(design, cfg: GradedConfig) -> float:
 def _widths_table(design, param, x: np.ndarray, cfg: GradedConfig) -> tuple[dict, list[str]]:
     """``widths.json`` and the report's lines on the widths."""
     widths = param.widths(x)
+    if hasattr(param, "segments_mm"):  # the honeycomb, by edge
+        table = {"pattern": design.pattern, "edges": [
+            {"from_mm": a.tolist(), "to_mm": b.tolist(), "width_mm": float(w), "orbit": int(g)}
+            for (a, b), w, g in zip(param.segments_mm, widths, param.group)],
+            "variables_mm": x.tolist(), "symmetry": cfg.symmetry, "leads_area_mm2": float(param.leads.area)}
+        return table, [f"graded honeycomb: pitch {design.pitch_mm:g} mm, {len(widths)} edges in {param.n_variables} "
+                       f"orbits ({cfg.symmetry}), widths {widths.min():.3f} to {widths.max():.3f} mm (every edge in "
+                       "widths.json)" + (f"; leads to electrodes the edges miss: {param.leads.area:.1f} mm^2"
+                                         if param.leads.area else "")]
     if not hasattr(param, "normals"):  # the square lattice's outer-product form
         m = len(param.lines_mm)
         table = {"lines_mm": param.lines_mm.tolist(), "widths_along_y_mm": widths[:m].tolist(),
