@@ -48,6 +48,8 @@ OUTLINES = {
     "freeform_d4_t3_30.geojson": ("other", "free-form"),
     "graded_diagonal_d4_t3.geojson": ("other", "graded diagonal, 4 mm mould"),
     "graded_shift_d4_t3.geojson": ("other", "graded, lines moved, 4 mm mould"),
+    "hexagonal_same_fraction_as_graded_hex.geojson": ("reference", "hexagonal w6.7"),
+    "graded_hex_mirror_t3.geojson": ("other", "graded honeycomb, 4 mm mould"),
 }
 
 
@@ -90,15 +92,15 @@ ALSO_AGAINST = {"graded_shift_d4_t3.geojson": "front_free_d4_t3.geojson"}
 
 
 def table(scores: dict[str, dict]) -> list[str]:
-    """Markdown rows: each front point and other optimized outline against the lattice of its family (square, or
-    diagonal for a diagonal outline) of the nearest gel fraction and against its family's w = 4 (the 4 mm mould's
-    minimum feature), then the pairs of :data:`ALSO_AGAINST`."""
+    """Markdown rows: each front point and other optimized outline against the lattice of its family (square;
+    diagonal or hexagonal for a diagonal outline or a honeycomb) of the nearest gel fraction and against its
+    family's w = 4 (the 4 mm mould's minimum feature), then the pairs of :data:`ALSO_AGAINST`."""
     lines = ["| outline (gel fraction) | held-out mean V_rel ± SE | uniformity | worst-to-best "
              "| minus the lattice of its gel fraction | minus the lattice w = 4 |", "|---|---|---|---|---|---|"]
     for f, s in scores.items():
         if OUTLINES[f][0] == "reference":
             continue
-        family = "diagonal" if "diagonal" in f else "square"
+        family = "diagonal" if "diagonal" in f else "hexagonal" if "hex" in f else "square"
         refs = {g: r for g, r in scores.items() if OUTLINES[g][0] == "reference" and OUTLINES[g][1].startswith(family)}
         near = min(refs, key=lambda g: abs(refs[g]["gel"] - s["gel"]))
         cells = []
@@ -141,7 +143,7 @@ def plot(scores: dict[str, dict], best: list[str], path: Path) -> Path:
     ax.set_xlabel("uniformity over the 7 x 7 probe grid (1 - CV of V_rel), exact mesh")
     ax.set_ylabel("mean V_rel over 100 held-out presses (± SE, unpaired), exact mesh")
     ax.set_title("graded lattices with a 4 mm mould (black; u = their uniformity floor in the density model)\n"
-                 "against square and diagonal lattices (w in mm), t = 3 mm, 2 mm mesh", fontsize=8)
+                 "against square, diagonal and hexagonal lattices (w in mm), t = 3 mm, 2 mm mesh", fontsize=8)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7)
     for i, f in enumerate(best):
