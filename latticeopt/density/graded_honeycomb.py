@@ -18,10 +18,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import _validate as v
 from ..errors import ParameterError
 from .graded import band_union, band_union_adjoint, pool_samples, pool_samples_adjoint
-from .graded_strips import SYMMETRY_GROUPS, rasterize
+from .graded_strips import SYMMETRY_GROUPS, check_band_settings, fixed_leads
 
 HONEYCOMB_SYMMETRIES = ("none", "mirror")
 
@@ -86,9 +85,7 @@ class GradedHoneycomb:
         if self.design.pattern != "hexagonal":
             raise ParameterError("design.pattern", "'hexagonal' for a graded honeycomb", self.design.pattern)
         check_honeycomb_symmetry(self.symmetry, "symmetry")
-        set_(self, "smoothing_mm", v.real("smoothing_mm", self.smoothing_mm, lo=0.0, lo_open=True, hi=10.0))
-        set_(self, "samples", v.integer("samples", self.samples, lo=1, hi=16))
-        set_(self, "lead_width_mm", v.real("lead_width_mm", self.lead_width_mm, lo=0.0, lo_open=True, hi=50.0))
+        check_band_settings(self)
         L = self.design.size_mm
         c = np.array([L / 2, L / 2])
         # the edges reaching inside the sensor; an edge lying on a side would be part of a rim channel
@@ -109,10 +106,9 @@ class GradedHoneycomb:
         set_(self, "_across", np.abs(v_))
         set_(self, "_caps", 0.25 * (1 + np.tanh(u / sm)) * (1 + np.tanh((length[:, None, None] - u) / sm)))
         thin = self._geometry(np.full(len(segs), self.lead_width_mm))
-        joined = layout.add_leads(thin, self.design.electrodes(), self.lead_width_mm, L)
-        leads = joined.difference(thin)
+        leads, lead_field = fixed_leads(thin, self.design, self.lead_width_mm, X, Y)
         set_(self, "leads", leads)
-        set_(self, "_lead", rasterize(leads, X, Y))
+        set_(self, "_lead", lead_field)
 
     @property
     def n_variables(self) -> int:

@@ -41,6 +41,23 @@ def check_graded_pattern(pattern: str, name: str = "design.pattern") -> None:
                              pattern)
 
 
+def check_band_settings(graded) -> None:
+    """Validate (in place) a graded lattice's ``smoothing_mm``, ``samples`` and ``lead_width_mm``."""
+    set_ = object.__setattr__
+    set_(graded, "smoothing_mm", v.real("smoothing_mm", graded.smoothing_mm, lo=0.0, lo_open=True, hi=10.0))
+    set_(graded, "samples", v.integer("samples", graded.samples, lo=1, hi=16))
+    set_(graded, "lead_width_mm", v.real("lead_width_mm", graded.lead_width_mm, lo=0.0, lo_open=True, hi=50.0))
+
+
+def fixed_leads(thin, design, width_mm: float, X: np.ndarray, Y: np.ndarray):
+    """The lead channels (shapely) that join the electrodes the channels ``thin`` (laid at ``width_mm``) miss, and
+    their indicator at the sample points ``(X, Y)`` (mm from the sensor's corner)."""
+    from ..layout import add_leads
+
+    leads = add_leads(thin, design.electrodes(), width_mm, design.size_mm).difference(thin)
+    return leads, rasterize(leads, X, Y)
+
+
 def _canonical(normal: np.ndarray, offset: float) -> tuple[np.ndarray, float]:
     """The same line with its normal's first non-zero component positive."""
     flip = normal[0] < -1e-9 or (abs(normal[0]) <= 1e-9 and normal[1] < 0)
@@ -146,9 +163,7 @@ class GradedStrips:
         set_ = object.__setattr__
         check_graded_pattern(self.design.pattern)
         set_(self, "symmetry", v.choice("symmetry", self.symmetry, GRADED_SYMMETRIES))
-        set_(self, "smoothing_mm", v.real("smoothing_mm", self.smoothing_mm, lo=0.0, lo_open=True, hi=10.0))
-        set_(self, "samples", v.integer("samples", self.samples, lo=1, hi=16))
-        set_(self, "lead_width_mm", v.real("lead_width_mm", self.lead_width_mm, lo=0.0, lo_open=True, hi=50.0))
+        check_band_settings(self)
         set_(self, "max_shift_mm", v.real("max_shift_mm", self.max_shift_mm, lo=0.0, hi=50.0))
         check_max_shift(self.design, self.max_shift_mm, "max_shift_mm")
         L, pitch = self.design.size_mm, self.design.pitch_mm
@@ -161,10 +176,9 @@ class GradedStrips:
         X, Y = np.meshgrid(s, s)  # rows y, columns x
         set_(self, "_dist", normals[:, 0, None, None] * X + normals[:, 1, None, None] * Y - offsets[:, None, None])
         thin = self._geometry(np.full(len(offsets), self.lead_width_mm))
-        joined = layout.add_leads(thin, self.design.electrodes(), self.lead_width_mm, L)
-        leads = joined.difference(thin)
+        leads, lead_field = fixed_leads(thin, self.design, self.lead_width_mm, X + L / 2, Y + L / 2)
         set_(self, "leads", leads)
-        set_(self, "_lead", rasterize(leads, X + L / 2, Y + L / 2))
+        set_(self, "_lead", lead_field)
         sg, sign = -np.ones(len(offsets), dtype=int), np.zeros(len(offsets))
         if self.max_shift_mm > 0:
             c, ends = np.array([L / 2, L / 2]), shapely.MultiLineString(layout.electrode_segments(
