@@ -97,11 +97,8 @@ def graded_parametrization(design, cfg: GradedConfig):
         return GradedSquare(design, cfg.cells, cfg.symmetry, cfg.smoothing_mm, cfg.samples)
     if design.pattern == "hexagonal":
         return GradedHoneycomb(design, cfg.cells, cfg.symmetry, cfg.smoothing_mm, cfg.samples, cfg.min_width_mm)
-    try:
-        return GradedStrips(design, cfg.cells, cfg.symmetry, cfg.smoothing_mm, cfg.samples, cfg.min_width_mm,
-                            cfg.max_shift_mm)
-    except ParameterError as exc:
-        raise ParameterError(f"graded.{exc.name}", exc.expected, exc.got) from None
+    return GradedStrips(design, cfg.cells, cfg.symmetry, cfg.smoothing_mm, cfg.samples, cfg.min_width_mm,
+                        cfg.max_shift_mm)
 
 
 def max_width_mm(design, cfg: GradedConfig) -> float:
