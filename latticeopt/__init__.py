@@ -32,7 +32,7 @@ from .errors import (
     ModelFailure,
     ParameterError,
 )
-from .layout import read_geojson, read_layout, write_geojson
+from .layout_files import read_geojson, read_layout, write_geojson
 from .mesh import MeshSettings, TetMesh, mesh_design
 from .touches import Touch
 

@@ -34,6 +34,7 @@ from . import _validate as v
 from . import layout as _layout
 from .errors import ParameterError
 from .layout import PATTERNS, RIMS  # noqa: F401 (PATTERNS: re-exported for the CLI and the optimizer)
+from .layout_files import polygons_from_geometry, read_layout
 
 #: Most channel pitches across the sensor.
 MAX_PITCHES = 200
@@ -86,7 +87,7 @@ class LatticeDesign:
         every side, increasing; None: evenly spaced. Their number must be ``n_electrodes / 4``.
     custom_polygons_mm
         ``pattern = "custom"`` only: hydrogel polygons as ``((shell, *holes), ...)`` rings of ``(x, y)``
-        points (mm), e.g. from :func:`latticeopt.layout.read_layout` (GeoJSON or DXF).
+        points (mm), e.g. from :func:`latticeopt.layout_files.read_layout` (GeoJSON or DXF).
     """
 
     width_mm: float = 4.0
@@ -149,7 +150,7 @@ class LatticeDesign:
                 raise ParameterError("custom_polygons_mm", "hydrogel polygons for pattern = 'custom' "
                                      "(--layout FILE.geojson or FILE.dxf)", self.custom_polygons_mm)
             gel = _layout.validate_polygons(self.custom_polygons_mm, self.size_mm)
-            set_(self, "custom_polygons_mm", _layout.polygons_from_geometry(gel))
+            set_(self, "custom_polygons_mm", polygons_from_geometry(gel))
         elif self.custom_polygons_mm:
             raise ParameterError("custom_polygons_mm", "no polygons unless pattern = 'custom'",
                                  f"{len(self.custom_polygons_mm)} polygon(s) with pattern = {self.pattern!r}")
@@ -381,7 +382,7 @@ def design_from_table(table: dict, base_dir: str | None = None) -> LatticeDesign
             path = Path(base_dir) / path
         if values.get("pattern", "custom") != "custom":
             raise ParameterError("pattern", "custom (or nothing) with a layout file", values["pattern"])
-        values.update(pattern="custom", custom_polygons_mm=_layout.read_layout(path, name="layout"))
+        values.update(pattern="custom", custom_polygons_mm=read_layout(path, name="layout"))
     fraction = values.pop("hydrogel_fraction", None)
     if fraction is None:
         return LatticeDesign(**values)

@@ -16,7 +16,7 @@ centre lines of the two channels on either side of one island:
     Three families of parallel lines (0, 60 and 120 degrees) ``p`` apart through the sensor centre; the
     islands are equilateral triangles (so ``w < 2 p / 3``).
 ``custom``
-    Hydrogel polygons given by the user (GeoJSON, :func:`read_geojson`).
+    Hydrogel polygons given by the user (GeoJSON or DXF, :func:`latticeopt.layout_files.read_layout`).
 
 The rim: ``rim = "channel"`` lays a channel of width ``w / 2`` along the inside of the lattice's outer
 boundary (for ``square`` with ``frame_mm = 0`` this is the half-width channel that the lines ``x, y = 0, L``
@@ -29,11 +29,9 @@ from the electrode centre to the nearest hydrogel (``electrode_leads``; custom l
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
@@ -309,23 +307,6 @@ def check_electrodes(footprint, electrodes: np.ndarray, size_mm: float, name: st
 
 
 # -- custom layouts -----------------------------------------------------------------------------------------
-def polygons_from_geometry(geom) -> tuple:
-    """A shapely (Multi)Polygon as nested tuples ``((shell, *holes), ...)`` of ``(x, y)`` pairs (hashable)."""
-    polys = getattr(geom, "geoms", [geom])
-    out = []
-    for p in polys:
-        rings = [p.exterior, *p.interiors]
-        out.append(tuple(tuple((float(x), float(y)) for x, y in np.asarray(r.coords)[:, :2]) for r in rings))
-    return tuple(out)
-
-
-def geometry_from_polygons(polygons) -> object:
-    """The inverse of :func:`polygons_from_geometry` (no validation)."""
-    import shapely
-
-    return shapely.MultiPolygon([shapely.Polygon(rings[0], rings[1:]) for rings in polygons])
-
-
 def validate_polygons(polygons, size_mm: float, name: str = "custom_polygons_mm"):
     """Check custom hydrogel polygons and return their union (shapely).
 
@@ -362,62 +343,3 @@ def validate_polygons(polygons, size_mm: float, name: str = "custom_polygons_mm"
                                  f"bounds ({x0:g}, {y0:g}, {x1:g}, {y1:g}), {outside:.3g} mm^2 outside")
         parts.append(poly.intersection(_box(0, 0, size_mm, size_mm)))
     return _clean(shapely.union_all(parts))
-
-
-def read_layout(path: str | Path, name: str = "--layout") -> tuple:
-    """Hydrogel polygons (mm) from a layout file: GeoJSON (:func:`read_geojson`) or DXF
-    (:func:`latticeopt.layout_dxf.read_dxf`), chosen by the suffix."""
-    suffix = Path(path).suffix.lower()
-    if suffix == ".dxf":
-        from .layout_dxf import read_dxf
-
-        return read_dxf(path, name)
-    if suffix not in (".geojson", ".json"):
-        raise ParameterError(name, "a GeoJSON (.geojson, .json) or DXF (.dxf) layout file", str(path))
-    return read_geojson(path, name)
-
-
-def read_geojson(path: str | Path, name: str = "--layout") -> tuple:
-    """Hydrogel polygons (mm) from a GeoJSON file: a FeatureCollection, Feature, Polygon or MultiPolygon.
-
-    Returns the nested tuples of :func:`polygons_from_geometry`, in the file's coordinates (mm, the sensor
-    being ``[0, L] x [0, L]``). Validation against a sensor happens in :class:`~latticeopt.LatticeDesign`.
-    """
-    import shapely.geometry
-
-    p = Path(path)
-    if p.suffix.lower() not in (".geojson", ".json"):
-        raise ParameterError(name, "a GeoJSON file (.geojson or .json)", str(p))
-    try:
-        doc = json.loads(p.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise ParameterError(name, "a readable GeoJSON file", f"{p} ({exc.strerror})") from None
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ParameterError(name, "a GeoJSON file (UTF-8 JSON)", f"{p} ({exc})") from None
-    if not isinstance(doc, dict):
-        raise ParameterError(name, "a GeoJSON object", type(doc).__name__)
-    kind = doc.get("type")
-    geoms = {"FeatureCollection": lambda d: [f.get("geometry") for f in d.get("features", [])],
-             "Feature": lambda d: [d.get("geometry")]}.get(kind, lambda d: [d])(doc)
-    polys = []
-    for g in geoms:
-        if not isinstance(g, dict) or g.get("type") not in ("Polygon", "MultiPolygon"):
-            got = g.get("type") if isinstance(g, dict) else g
-            raise ParameterError(name, "Polygon or MultiPolygon geometries", f"{got} in {p}")
-        try:
-            shp = shapely.geometry.shape(g)
-        except (ValueError, TypeError, IndexError, AttributeError) as exc:
-            raise ParameterError(name, "well-formed Polygon coordinates", f"{p} ({exc})") from None
-        polys.extend(polygons_from_geometry(shp))
-    if not polys:
-        raise ParameterError(name, "at least one hydrogel polygon", f"none in {p}")
-    return tuple(polys)
-
-
-def write_geojson(footprint, path: str | Path) -> None:
-    """Write a footprint as a GeoJSON FeatureCollection (mm), readable by :func:`read_geojson`."""
-    import shapely.geometry
-
-    feature = {"type": "Feature", "properties": {"units": "mm", "material": "hydrogel"},
-               "geometry": shapely.geometry.mapping(footprint)}
-    Path(path).write_text(json.dumps({"type": "FeatureCollection", "features": [feature]}), encoding="utf-8")

@@ -16,7 +16,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from .errors import ParameterError
-from .layout import polygons_from_geometry
+from .layout_files import polygons_from_geometry
 
 __all__ = ["FLATTEN_TOL_MM", "read_dxf", "write_dxf"]
 
@@ -42,7 +42,7 @@ def read_dxf(path: str | Path, name: str = "--layout") -> tuple:
     Returns
     -------
     tuple
-        The nested ``((shell, *holes), ...)`` tuples of :func:`latticeopt.layout.polygons_from_geometry`, in
+        The nested ``((shell, *holes), ...)`` tuples of :func:`latticeopt.layout_files.polygons_from_geometry`, in
         mm in the drawing's coordinates (the sensor is ``[0, L] x [0, L]``); validation against a sensor
         happens in :class:`~latticeopt.LatticeDesign`.
     """

@@ -3,12 +3,11 @@
 Periodic patterns: inside a window that is a whole number of periods of the tiling (away from the rim), the
 hydrogel fraction is the island-scaling result ``1 - (1 - c w / p)^2`` (c = 1 for square, diagonal and
 hexagonal cells, whose islands are the cells shrunk by ``w / 2`` per side; c = 3/2 for triangles, whose
-inradius is ``p / 3``). Symmetry of the square sensor, closed-form rim bands, and GeoJSON round trips.
+inradius is ``p / 3``). Symmetry of the square sensor, and closed-form rim bands.
 """
 
 from __future__ import annotations
 
-import json
 import math
 
 import numpy as np
@@ -18,7 +17,7 @@ from shapely.affinity import scale
 
 from latticeopt.design import LatticeDesign, design_from_table, width_for_fraction
 from latticeopt.errors import ParameterError
-from latticeopt.layout import electrode_contact_mm, read_geojson, write_geojson
+from latticeopt.layout import electrode_contact_mm
 
 P = 12.5
 
@@ -100,52 +99,24 @@ def test_hydrogel_fraction_solves_the_width(pattern):
         design_from_table({"pattern": pattern, "hydrogel_fraction": 0.001})
 
 
-def test_geojson_round_trip_gives_the_same_hydrogel(tmp_path):
-    src = LatticeDesign(pattern="hexagonal", width_mm=3)
-    path = tmp_path / "hex.geojson"
-    write_geojson(src.footprint(), path)
-    custom = design_from_table({"layout": str(path), "thickness_mm": 3})
-    assert custom.pattern == "custom"
-    assert custom.footprint().symmetric_difference(src.footprint()).area < 1e-9
-    assert custom.region_volumes_mm3()["hydrogel"] == pytest.approx(src.region_volumes_mm3()["hydrogel"], rel=1e-12)
-    # The design holds the polygons themselves: its identity does not depend on where the file was.
-    assert LatticeDesign(**custom.as_dict()).content_hash() == custom.content_hash()
+def _polygon(ring) -> tuple:
+    return (tuple(tuple(map(float, xy)) for xy in ring),)
 
 
-def _write(tmp_path, coords, name="l.geojson"):
-    path = tmp_path / name
-    path.write_text(json.dumps({"type": "Polygon", "coordinates": coords}))
-    return path
-
-
-def test_bad_custom_layouts_are_rejected_with_the_reason(tmp_path):
-    bowtie = [[[0, 0], [100, 100], [100, 0], [0, 100], [0, 0]]]
+def test_bad_custom_layouts_are_rejected_with_the_reason():
+    bowtie = [[0, 0], [100, 100], [100, 0], [0, 100], [0, 0]]
     with pytest.raises(ParameterError, match=r"custom_polygons_mm\[0\]: expected a valid polygon.*Self-intersection"):
-        LatticeDesign(pattern="custom", custom_polygons_mm=read_geojson(_write(tmp_path, bowtie)))
-    outside = [[[-10, 0], [100, 0], [100, 100], [-10, 100], [-10, 0]]]
+        LatticeDesign(pattern="custom", custom_polygons_mm=(_polygon(bowtie),))
+    outside = [[-10, 0], [100, 0], [100, 100], [-10, 100], [-10, 0]]
     with pytest.raises(ParameterError, match="inside the sensor"):
-        LatticeDesign(pattern="custom", custom_polygons_mm=read_geojson(_write(tmp_path, outside)))
+        LatticeDesign(pattern="custom", custom_polygons_mm=(_polygon(outside),))
     with pytest.raises(ParameterError, match="closed rings"):
         LatticeDesign(pattern="custom", custom_polygons_mm=(((0, 0), (100, 0), (100, 100), (0, 100)),))
-    strip = [[[0, 10], [100, 10], [100, 15], [0, 15], [0, 10]]]
+    strip = [[0, 10], [100, 10], [100, 15], [0, 15], [0, 10]]
     with pytest.raises(ParameterError, match="electrode 1 at x = 12.5, y = 0"):
-        LatticeDesign(pattern="custom", custom_polygons_mm=read_geojson(_write(tmp_path, strip)))
-    (tmp_path / "p.geojson").write_text(json.dumps({"type": "Point", "coordinates": [1, 2]}))
-    with pytest.raises(ParameterError, match="Polygon or MultiPolygon"):
-        read_geojson(tmp_path / "p.geojson")
-    (tmp_path / "b.geojson").write_bytes(b"\xff\xfe{")
-    with pytest.raises(ParameterError, match="UTF-8 JSON"):
-        read_geojson(tmp_path / "b.geojson")
+        LatticeDesign(pattern="custom", custom_polygons_mm=(_polygon(strip),))
     with pytest.raises(ParameterError, match="no polygons unless pattern = 'custom'"):
         LatticeDesign(custom_polygons_mm=(((0, 0), (1, 0), (1, 1), (0, 0)),))
-
-
-def test_shipped_example_layout_is_valid():
-    from pathlib import Path
-
-    path = Path(__file__).resolve().parents[1] / "studies" / "data" / "ring_layout.geojson"
-    d = design_from_table({"layout": str(path)})
-    assert np.all(electrode_contact_mm(d.footprint(), d.electrodes()) > 0)
 
 
 def test_a_family_added_to_the_table_is_a_pattern_with_its_channels_and_width_bound(monkeypatch):

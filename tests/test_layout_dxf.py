@@ -8,7 +8,7 @@ import pytest
 
 from latticeopt.design import LatticeDesign, design_from_table
 from latticeopt.errors import ParameterError
-from latticeopt.layout import geometry_from_polygons
+from latticeopt.layout_files import geometry_from_polygons
 from latticeopt.layout_dxf import FLATTEN_TOL_MM, read_dxf
 
 ezdxf = pytest.importorskip("ezdxf")

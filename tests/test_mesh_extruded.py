@@ -12,7 +12,8 @@ import shapely
 
 from latticeopt.design import REGION_IDS, LatticeDesign
 from latticeopt.errors import ParameterError
-from latticeopt.layout import electrode_contact_mm, read_geojson, write_geojson
+from latticeopt.layout import electrode_contact_mm
+from latticeopt.layout_files import read_geojson, write_geojson
 from latticeopt.mechanics.assembly import dilatation_patches
 from latticeopt.mesh import MeshSettings, TetMesh, mesh_design
 from latticeopt.mesh.extruded import extrude, extruded_mesh, pair_triangles, prism_block_mesh, triangulate_layout

@@ -10,7 +10,7 @@ from latticeopt import LatticeDesign, MeshSettings
 from latticeopt.cli import main
 from latticeopt.density.outline import density_outline
 from latticeopt.density.projection import FreeForm
-from latticeopt.layout import read_geojson
+from latticeopt.layout_files import read_geojson
 
 DESIGN = LatticeDesign(thickness_mm=3.0)
 
@@ -40,7 +40,7 @@ def test_outline_drops_floating_gel_and_round_trips(tmp_path):
     d[5, 4:6] = 1.0     # an island in the middle: touches no electrode
     geom, report = density_outline(DESIGN, d, smooth_mm=1.0)
     assert report["pieces"] == 1 and report["pieces_dropped"] == 1 and report["dropped_area_mm2"] > 150
-    from latticeopt.layout import write_geojson
+    from latticeopt.layout_files import write_geojson
 
     write_geojson(geom, tmp_path / "l.geojson")
     back = read_geojson(tmp_path / "l.geojson")

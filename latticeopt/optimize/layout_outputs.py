@@ -35,7 +35,7 @@ def write_outputs(design, rho: np.ndarray, cfg, out: Path, history: list, geomet
     from ..density import save_density
     from ..density.outline import density_outline
     from ..geometry import build_solids, write_stl
-    from ..layout import polygons_from_geometry, write_geojson
+    from ..layout_files import polygons_from_geometry, write_geojson
 
     files = {"density": str(save_density(out / "density.npz", rho))}
     if geometry is None:
