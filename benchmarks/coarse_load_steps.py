@@ -1,0 +1,81 @@
+"""Longer load steps on a two-level sweep's coarse level: do they make the coarse pass cheaper?
+
+The coarse level (mechanics on a 4 mm grid with one cell across a channel, ``mechanics_rtol = 1e-2``, electrics
+on the fine mesh) presses every phantom of a map, and its mechanics is nearly all of its time. A press is
+applied in load steps of at most ``max_step_mm`` (1 mm); fewer, longer steps might save Newton iterations. For
+each design this presses the first 4 paper phantoms of every touch count and the 6 deepest with each
+``--steps`` value (a fresh solver per value, in this one process) and prints the Newton iterations, the
+factorizations, the Krylov iterations, the CPU seconds (steadier than wall time on a shared machine) and how far
+V_rel moved from the first value's.
+
+    python benchmarks/coarse_load_steps.py --steps 1 2.5 5 --designs 4,3 2,1 6,5
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import os
+import time
+
+for _v in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+    os.environ.setdefault(_v, "1")
+
+import numpy as np  # noqa: E402
+
+from latticeopt import LatticeDesign  # noqa: E402
+from latticeopt.coupled import model_for_settings  # noqa: E402
+from latticeopt.errors import ConvergenceError  # noqa: E402
+from latticeopt.mechanics.indent import IndentationSolver  # noqa: E402
+from latticeopt.study.config import load_study  # noqa: E402
+from latticeopt.study.settings import coarse_level_settings  # noqa: E402
+
+
+def _phantoms(study) -> list[int]:
+    phs = study.phantoms
+    first = [i for k in (1, 2, 3) for i in [j for j in range(len(phs)) if phs[j].n_touches == k][:4]]
+    deepest = sorted(range(len(phs)), key=lambda i: -max(t.depth_mm for t in phs[i].touches))[:6]
+    return sorted(set(first) | set(deepest))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--steps", type=float, nargs="+", default=[1.0, 2.5, 5.0], help="max_step_mm values (mm)")
+    ap.add_argument("--designs", nargs="+", default=["4,3", "2,1", "6,5"], help="WIDTH,THICKNESS pairs (mm)")
+    args = ap.parse_args()
+    study = load_study("studies/paper_fig4.toml", ["multilevel.pilot=15"])
+    level = coarse_level_settings(study.settings, study.multilevel)
+    pick = _phantoms(study)
+    print(f"{len(pick)} phantoms (first 4 per touch count and the 6 deepest, "
+          f"{max(max(t.depth_mm for t in study.phantoms[i].touches) for i in pick):.2f} mm deepest)")
+    print("| w, t | max_step_mm | Newton | factorizations | Krylov iterations | CPU seconds | failed | "
+          "V_rel change: median | max |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for pair in args.designs:
+        w, t = map(float, pair.split(","))
+        model = model_for_settings(LatticeDesign(width_mm=w, thickness_mm=t), level)
+        base = None
+        for step in args.steps:
+            # the same model with only the mechanics' load step changed
+            model.mechanics = IndentationSolver(model.mechanics_mesh,
+                                                dataclasses.replace(model.physics.indent_settings(), max_step_mm=step))
+            rows = []
+            for i in pick:
+                t0 = time.process_time()
+                try:
+                    r = model.simulate(study.phantoms[i].touches)
+                    ops = r.indentation.solver
+                    rows.append((r.v_rel, r.newton_steps, ops["n_factorizations"], ops["krylov_iterations"]))
+                except ConvergenceError:
+                    rows.append((np.nan, 0, 0, 0))
+                rows[-1] += (time.process_time() - t0,)
+            r = np.array(rows)
+            base = r if base is None else base
+            rel = np.abs(r[:, 0] / base[:, 0] - 1)
+            ops = " | ".join(f"{r[:, k].sum():.0f}" for k in (1, 2, 3))
+            print(f"| {w:g}, {t:g} | {step:g} | {ops} | {r[:, 4].sum():.1f} | "
+                  f"{int(np.isnan(r[:, 0]).sum())} | {np.nanmedian(rel):.1e} | {np.nanmax(rel):.1e} |", flush=True)
+
+
+if __name__ == "__main__":
+    main()
