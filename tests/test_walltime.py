@@ -65,6 +65,10 @@ def test_without_a_store_the_documented_cost_scaled_by_mesh_size(tmp_path):
     line = at_4.line()
     assert line.startswith(f"estimated wall time: {format_seconds(at_4.most_s)} on 2 workers; 8 to run")
     assert "estimated: " in line and "docs/performance.md x (2 / 4)^3" in line and "no stored rows" in line
+    # finer than 2 mm the factorization's n^2 work takes over: 1.4 mm runs took about 8x their 2 mm seconds
+    at_14 = _estimate(_study(tmp_path, size=1.4))
+    assert 8.0 < at_14.most_s / at_2.most_s < 9.0
+    assert "x (2 / 1.4)^6" in at_14.line()
 
 
 def test_stored_rows_give_the_measured_seconds_and_only_what_is_missing_counts(tmp_path):

@@ -11,9 +11,13 @@ The seconds per phantom, in order of preference:
 - *measured*: the mean of the seconds the store recorded for its rows under the level's settings key (failed
   rows included: they cost time too), when it holds any;
 - *estimated*: :data:`SECONDS_AT_2MM` per phantom per worker on a 2 mm mesh (the paper map's fine level,
-  ``docs/performance.md``), scaled by ``(2 mm / mechanics mesh size)^3``, as a tetrahedral mesh's node count
-  scales; the same table's coarse level (4 mm: 0.96 s) is 0.125 of it, and the quick study (36 evaluations at 2
-  mm, 2 workers: 139 s by this rule) took 134 s. A custom model's cost is its own: the estimate says so.
+  ``docs/performance.md``), scaled by ``(2 mm / mechanics mesh size)^3`` on coarser meshes, as a tetrahedral
+  mesh's node count scales (the same table's coarse level, 4 mm: 0.96 s, is 0.125 of it; the quick study, 36
+  evaluations at 2 mm on 2 workers, 139 s by this rule, took 134 s), and by ``(2 mm / size)^6`` on finer ones,
+  where the direct factorization, whose work grows as the square of the node count, takes over (the same 20
+  held-out presses on 1.4 mm against 2 mm meshes: 8.0x the seconds on two outlines, 5.9-14x, median 8.3, on
+  seven more with the cores shared; ``(2 / 1.4)^6`` = 8.5, the cube 2.9). A custom model's cost is its own: the
+  estimate says so.
 """
 
 from __future__ import annotations
@@ -34,6 +38,11 @@ SECONDS_AT_2MM = 7.7
 _REFERENCE_MM = 2.0
 
 
+def _size_exponent(mesh_mm: float) -> int:
+    """How the seconds per phantom scale with ``2 mm / mesh_mm`` (module docstring): 3 coarser, 6 finer."""
+    return 3 if mesh_mm >= _REFERENCE_MM else 6
+
+
 @dataclass(frozen=True)
 class LevelCost:
     """One level's share of the estimate."""
@@ -49,7 +58,7 @@ class LevelCost:
         if self.measured_rows:
             return f"measured: mean of {self.measured_rows} stored rows with these settings"
         other = "" if self.model == DEFAULT_MODEL else f", the cost of {DEFAULT_MODEL}, not of {self.model}"
-        scaled = "" if self.mesh_mm == _REFERENCE_MM else f" x (2 / {self.mesh_mm:g})^3"
+        scaled = "" if self.mesh_mm == _REFERENCE_MM else f" x (2 / {self.mesh_mm:g})^{_size_exponent(self.mesh_mm)}"
         return (f"estimated: {SECONDS_AT_2MM:g} s at 2 mm from docs/performance.md{scaled}{other}; no stored rows "
                 "with these settings")
 
@@ -116,7 +125,7 @@ def wall_time(levels: Sequence[Level], tasks: Sequence[tuple[str, str]], out_dir
             if seconds:
                 per = sum(seconds.values()) / len(seconds)
             else:
-                per = SECONDS_AT_2MM * (_REFERENCE_MM / mesh) ** 3
+                per = SECONDS_AT_2MM * (_REFERENCE_MM / mesh) ** _size_exponent(mesh)
             costs.append(LevelCost(lv.name, (max(lv.min_evaluations - done, 0), max(lv.max_evaluations - done, 0)),
                                    per, len(seconds), mesh, lv.settings.model))
     finally:
