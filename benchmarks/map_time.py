@@ -5,7 +5,9 @@ mechanics mesh); a plain sweep has one. Per level this prints the evaluations (o
 seconds per evaluation, the worker hours, and the wall hours they come to on ``--workers`` workers; then the
 fine evaluations per design and the wall time the store's timestamps span, with the pauses between resumed
 runs (gaps longer than ``--gap-min``) left out. Model seconds are what the workers spent in the model, so they
-are the numbers to compare between runs on a shared machine; the wall time includes everything else.
+are the numbers to compare between runs on a shared machine; the wall time includes everything else. An
+evaluation's seconds are its worker's wall seconds, so a run paused with SIGSTOP counts the pause in the
+evaluations it held: stop a timed map with Ctrl-C (SIGINT) and resume it instead.
 
     python benchmarks/map_time.py runs/paper_fig4_takeall [--workers 2] [--gap-min 10]
 """
