@@ -8,8 +8,8 @@ import pytest
 
 from latticeopt.design import LatticeDesign, design_from_table
 from latticeopt.errors import ParameterError
-from latticeopt.layout_files import geometry_from_polygons
 from latticeopt.layout_dxf import FLATTEN_TOL_MM, read_dxf
+from latticeopt.layout_files import geometry_from_polygons
 
 ezdxf = pytest.importorskip("ezdxf")
 
