@@ -21,6 +21,16 @@ from ..layout import square_lines_mm
 GRADED_SYMMETRIES = ("none", "mirror", "d4")
 
 
+def check_band_settings(graded) -> None:
+    """Validate (in place) a graded lattice's ``smoothing_mm`` and ``samples``, and its ``lead_width_mm`` when it
+    lays fixed leads."""
+    set_ = object.__setattr__
+    set_(graded, "smoothing_mm", v.real("smoothing_mm", graded.smoothing_mm, lo=0.0, lo_open=True, hi=10.0))
+    set_(graded, "samples", v.integer("samples", graded.samples, lo=1, hi=16))
+    if hasattr(graded, "lead_width_mm"):
+        set_(graded, "lead_width_mm", v.real("lead_width_mm", graded.lead_width_mm, lo=0.0, lo_open=True, hi=50.0))
+
+
 def pool_samples(field_: np.ndarray, n: int, k: int) -> np.ndarray:
     """Mean over each cell's ``k x k`` samples: ``(n k, n k)`` -> ``(n, n)`` (rows y, columns x)."""
     return field_.reshape(n, k, n, k).mean(axis=(1, 3))
@@ -73,8 +83,7 @@ class GradedSquare:
     def __post_init__(self) -> None:
         set_ = object.__setattr__
         set_(self, "symmetry", v.choice("symmetry", self.symmetry, GRADED_SYMMETRIES))
-        set_(self, "smoothing_mm", v.real("smoothing_mm", self.smoothing_mm, lo=0.0, lo_open=True, hi=10.0))
-        set_(self, "samples", v.integer("samples", self.samples, lo=1, hi=16))
+        check_band_settings(self)
         L = self.design.size_mm
         lines = square_lines_mm(L, self.design.pitch_mm, "none")
         set_(self, "lines_mm", lines)

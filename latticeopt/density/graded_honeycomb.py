@@ -19,8 +19,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import ParameterError
-from .graded import band_union, band_union_adjoint, pool_samples, pool_samples_adjoint
-from .graded_strips import SYMMETRY_GROUPS, check_band_settings, fixed_leads
+from .graded import band_union, band_union_adjoint, check_band_settings, pool_samples, pool_samples_adjoint
+from .graded_strips import SYMMETRY_GROUPS, fixed_leads
 
 HONEYCOMB_SYMMETRIES = ("none", "mirror")
 

@@ -22,7 +22,14 @@ import numpy as np
 
 from .. import _validate as v
 from ..errors import ParameterError
-from .graded import GRADED_SYMMETRIES, band_union, band_union_adjoint, pool_samples, pool_samples_adjoint
+from .graded import (
+    GRADED_SYMMETRIES,
+    band_union,
+    band_union_adjoint,
+    check_band_settings,
+    pool_samples,
+    pool_samples_adjoint,
+)
 
 STRIP_PATTERNS = ("square", "diagonal", "triangular")
 SYMMETRY_GROUPS = {
@@ -39,14 +46,6 @@ def check_graded_pattern(pattern: str, name: str = "design.pattern") -> None:
     if pattern not in STRIP_PATTERNS:
         raise ParameterError(name, f"a lattice of straight lines to grade: one of {', '.join(STRIP_PATTERNS)}",
                              pattern)
-
-
-def check_band_settings(graded) -> None:
-    """Validate (in place) a graded lattice's ``smoothing_mm``, ``samples`` and ``lead_width_mm``."""
-    set_ = object.__setattr__
-    set_(graded, "smoothing_mm", v.real("smoothing_mm", graded.smoothing_mm, lo=0.0, lo_open=True, hi=10.0))
-    set_(graded, "samples", v.integer("samples", graded.samples, lo=1, hi=16))
-    set_(graded, "lead_width_mm", v.real("lead_width_mm", graded.lead_width_mm, lo=0.0, lo_open=True, hi=50.0))
 
 
 def fixed_leads(thin, design, width_mm: float, X: np.ndarray, Y: np.ndarray):
