@@ -55,6 +55,7 @@ from .mechanics.indenters import IN_PLANE, INDENTERS, PUNCH_EDGES
 from .mechanics.materials import Materials, NeoHookean
 from .mesh import MeshSettings, mesh_design
 from .mesh.transfer import interpolation_matrix
+from .metric import relative_change, smallest_reference_rel
 from .touches import Touch
 
 log = logging.getLogger(__name__)
@@ -98,6 +99,11 @@ class PhysicsSettings:
         (:class:`~latticeopt.mechanics.IndentSettings` ``rtol``). 1e-4 here, against 1e-6 for the indentation on
         its own: on six paper phantoms V_rel moved by at most 7e-6 (relative), far below the mesh error, with
         7 % fewer Newton iterations and 5 % less time.
+    measurement_floor_rel
+        Instrument resolution relative to the largest reference row, ``0 <= f <= 0.1``: ``V_rel`` divides each
+        row's change by ``max(|V_ref|, f max|V_ref|)`` (:mod:`latticeopt.metric`). 0 (default) is paper eq. 5;
+        a layout whose electrodes hang in pairs on dead-end channels has rows at round-off, which only a floor
+        (1e-4, say: 80 dB) keeps from carrying V_rel.
     """
 
     indenter: str = "flat"
@@ -114,6 +120,7 @@ class PhysicsSettings:
     conductivity_measure: str = CONDUCTIVITY_MEASURES[0]
     conductivity_k: float = 0.0
     mechanics_rtol: float = 1e-4
+    measurement_floor_rel: float = 0.0
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -127,6 +134,7 @@ class PhysicsSettings:
         for name in ("sigma_S_per_m", "current_A"):
             set_(self, name, v.real(name, getattr(self, name), lo=0, lo_open=True))
         set_(self, "mechanics_rtol", v.real("mechanics_rtol", self.mechanics_rtol, lo=0, lo_open=True, hi=1e-1))
+        set_(self, "measurement_floor_rel", v.real("measurement_floor_rel", self.measurement_floor_rel, lo=0, hi=1e-1))
         # the complete electrode model divides by z_c (ForwardModel rejects z_c <= 0): 0 would pass here and
         # then fail every phantom
         set_(self, "contact_impedance_ohm_m2",
@@ -180,12 +188,6 @@ class PhysicsSettings:
 
     def as_dict(self) -> dict:
         return dataclasses.asdict(self)
-
-
-def relative_change(voltages: np.ndarray, reference: np.ndarray) -> float:
-    """``V_rel`` of paper eq. 5: mean over rows of ``|V - V_ref| / |V_ref|``."""
-    voltages, reference = np.asarray(voltages, float), np.asarray(reference, float)
-    return float(np.mean(np.abs(voltages - reference) / np.abs(reference)))
 
 
 @dataclass(frozen=True, eq=False)
@@ -337,7 +339,7 @@ class CoupledModel:
                 volts = self._fallback.voltages(ind.deformed_mesh.nodes_mm)
         t2 = time.perf_counter()
         return SimulationResult(
-            v_rel=relative_change(volts, reference), voltages=volts,
+            v_rel=relative_change(volts, reference, self.physics.measurement_floor_rel), voltages=volts,
             reference_voltages=reference, forces_N=np.asarray(ind.forces_N),
             max_hydrogel_stretch=float(ind.max_hydrogel_stretch), newton_steps=int(ind.newton_steps),
             timings={"mechanics": t1 - t0, "electrics": t2 - t1, "total": t2 - t0}, indentation=ind,
@@ -354,7 +356,7 @@ def simulate(design: LatticeDesign, touches, mesh_settings: MeshSettings | None 
 def _result_dict(res: SimulationResult, setup_seconds: float) -> dict:
     out = {"v_rel": res.v_rel, "voltages": res.voltages, "forces_N": res.forces_N.tolist(),
            "timings": {**res.timings, "setup": setup_seconds}, "max_hydrogel_stretch": res.max_hydrogel_stretch,
-           "newton_steps": res.newton_steps}
+           "newton_steps": res.newton_steps, "min_reference_rel": smallest_reference_rel(res.reference_voltages)}
     if res.electrics_mesh != "mesh":
         out["electrics_mesh"] = res.electrics_mesh
     return out

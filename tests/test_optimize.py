@@ -236,6 +236,11 @@ def test_store_run_improves_on_start_writes_outputs_and_reuses(tmp_path, monkeyp
         assert {e.design_key for e in store.rows()} == designs
     rows = list(csv.DictReader(open(res.outputs["history"])))
     assert len(rows) == len(res.history) and float(rows[0]["width_mm"]) == 2.0
+    # the spread over presses, from the double's per-phantom factors: V_rel = f(w, t) * factor
+    f0 = _f(2.0, 4.5)
+    assert float(rows[0]["v_rel_median"]) == pytest.approx(f0 * np.median(factors), rel=1e-9)
+    assert float(rows[0]["v_rel_max"]) == pytest.approx(f0 * max(factors), rel=1e-9)
+    assert float(rows[0]["v_rel_max_share"]) == pytest.approx(max(factors) / sum(factors), rel=1e-9)
     for key in ("convergence", "path"):
         assert res.outputs[key].read_bytes()[:4] == b"\x89PNG"
     saved = json.loads(res.outputs["result"].read_text())

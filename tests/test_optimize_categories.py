@@ -77,6 +77,10 @@ def test_cli_ranks_the_combinations(tmp_path):
     with open(tmp_path / "out" / "categories.csv") as fh:
         rows = list(csv.DictReader(fh))
     assert {r["category"] for r in rows} == set(ranked)
+    for r in rows:  # the double gives every press the same V_rel: the median is the mean, each press half the sum
+        assert float(r["v_rel_median"]) == pytest.approx(float(r["score"]), rel=1e-12)
+        assert float(r["v_rel_max_share"]) == pytest.approx(0.5, rel=1e-12)
+    assert "median press" in done.stdout
 
 
 @pytest.mark.parametrize("change, match", [

@@ -549,3 +549,21 @@ def test_a_grid_of_layout_files_says_which_hash_is_which_file(tmp_path):
     plain = _study(tmp_path / "plain", n1=1, n2=1)
     run_sweep(plain, fake_evaluate, progress=False)
     assert not (plain.out_dir / "layouts.png").exists()  # a grid over widths has no layout files to draw
+
+
+def fake_evaluate_dead_ends(design, phantom, settings) -> dict:
+    """TEST DOUBLE whose w = 2 design reports reference rows at round-off (a dead-end channel)."""
+    return {**fake_evaluate(design, phantom, settings), "min_reference_rel": 1e-12 if design.width_mm == 2 else 0.01}
+
+
+@pytest.mark.parametrize("floor, warned", [(0.0, True), (1e-4, False)])
+def test_report_warns_of_reference_rows_at_round_off(tmp_path, floor, warned):
+    path = tmp_path / "study.toml"
+    path.write_text(STUDY.format(out=(tmp_path / "out").as_posix(), n1=2, n2=0)
+                    + f"[physics]\nmeasurement_floor_rel = {floor}\n")
+    res = run_sweep(load_study(path), fake_evaluate_dead_ends, progress=False)
+    lines = [line for line in res.report if line.startswith("warning:") and "round-off" in line]
+    assert len(lines) == int(warned)
+    if warned:  # names the design with the dead end, not the other, and the key that mends it
+        assert "(width = 2 mm)" in lines[0] and "width = 0" not in lines[0]
+        assert "1e-12" in lines[0] and "physics.measurement_floor_rel" in lines[0]

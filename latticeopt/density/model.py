@@ -35,7 +35,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..coupled import PhysicsSettings, relative_change
+from ..coupled import PhysicsSettings
 from ..design import LatticeDesign
 from ..electrics.forward import ForwardModel
 from ..electrics.sensitivity import weighted_sensitivities
@@ -44,6 +44,7 @@ from ..execution import run_tasks
 from ..mechanics.indent import IndentationSolver
 from ..mechanics.sensitivity import moduli_sensitivity, stretch_pnorm
 from ..mesh import MeshSettings
+from ..metric import relative_change_partials
 from ..touches import Touch
 from .connectivity import CellNetwork
 from .field import InterpolationLaw, check_density
@@ -261,7 +262,7 @@ class DensityModel:
         t1 = time.perf_counter()
         deformed = ref.with_nodes(ind.deformed_mesh.nodes_mm)
         v = deformed.voltages
-        v_rel = relative_change(v, v_ref)
+        v_rel, a, b = relative_change_partials(v, v_ref, self.physics.measurement_floor_rel)
         st = ind.state
         u = ind.displacement_mm
         p_s = self.law.stretch_exponent
@@ -277,10 +278,7 @@ class DensityModel:
             return PressResult(**out, timings={"mechanics": t1 - t0, "electrics": t2 - t1, "total": t2 - t0})
         dmu, dkappa, dsigma = derivs
         lt = self.layer_tets
-        # V_rel = mean |V - Vref| / |Vref|: its partials in V and Vref
-        s = np.sign(v - v_ref) / np.abs(v_ref) / len(v)
-        a = s
-        b = -s - np.abs(v - v_ref) * np.sign(v_ref) / v_ref ** 2 / len(v)
+        # a, b: the partials of V_rel in V and in Vref (relative_change_partials above)
         ds_def, dx_def = weighted_sensitivities(deformed, a)
         ds_ref, _ = weighted_sensitivities(ref, b)
         electrics = self._to_cells((ds_def + ds_ref) * dsigma)

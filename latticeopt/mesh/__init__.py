@@ -202,9 +202,10 @@ def _warn_if_coarser_than_features(design: LatticeDesign, settings: MeshSettings
     if settings.size_mm <= width or key in _WARNED_COARSE:
         return
     _WARNED_COARSE.add(key)
-    log.warning("mesh element size size_mm = %g mm (--mesh-size) is coarser than the design's narrowest feature "
-                "(%s = %g mm): the mesh holds the geometry but V_rel on it can be far from a converged mesh's "
-                "(docs/verification.md); size_mm <= %g resolves it", settings.size_mm, name, width, width)
+    log.warning("mesh element size size_mm = %g mm (--mesh-size; mesh.size_mm in a study) is coarser than the "
+                "design's narrowest feature (%s = %g mm): the mesh holds the geometry but V_rel on it can be far "
+                "from a converged mesh's (docs/verification.md); size_mm <= %g resolves it",
+                settings.size_mm, name, width, width)
 
 
 def mesh_design(design: LatticeDesign, settings: MeshSettings | None = None,

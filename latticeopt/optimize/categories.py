@@ -27,6 +27,7 @@ from ..errors import ParameterError
 from ..study.keynames import KeyNames
 from .load import optimization_from_dict
 from .problem import Optimization
+from .report import press_spread
 
 __all__ = ["CATEGORICAL_FIELDS", "CategoryRun", "categorical_optimizations", "run_categories", "write_summary"]
 
@@ -105,7 +106,9 @@ def write_summary(pairs: Sequence[tuple], path: Path) -> list[str]:
         best = res.best
         row = {"category": c.label, **dict(c.values), "evaluations": len(res.history)}
         if best is not None:
-            row.update({"score": best.score, "se": best.se, **{k: val for k, val in best.x.items()}})
+            median, _, share = press_spread(best.assessment)
+            row.update({"score": best.score, "se": best.se, "v_rel_median": median, "v_rel_max_share": share,
+                        **{k: val for k, val in best.x.items()}})
         rows.append(row)
     path.parent.mkdir(parents=True, exist_ok=True)
     fields = list(dict.fromkeys(k for r in rows for k in r))
@@ -117,6 +120,7 @@ def write_summary(pairs: Sequence[tuple], path: Path) -> list[str]:
     lines = [f"categories ranked by their optimum ({path}):"]
     for r in ranked:
         x = ", ".join(f"{k.removesuffix('_mm')} = {r[k]:.3f}" for k in r if k.endswith("_mm"))
-        lines.append(f"  {r['category']}: score {r['score']:.5g} ± {r['se']:.2g} at {x} ({r['evaluations']} calls)")
+        lines.append(f"  {r['category']}: score {r['score']:.5g} ± {r['se']:.2g} at {x} ({r['evaluations']} calls; "
+                     f"median press {r['v_rel_median']:.4g}, the strongest {r['v_rel_max_share']:.0%} of the sum)")
     lines += [f"  {r['category']}: no feasible design" for r in rows if "score" not in r]
     return lines

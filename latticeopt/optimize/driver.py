@@ -33,7 +33,8 @@ class Assessment:
     NaN when the design could not be scored, which includes any failed phantom (infeasible). ``computed``
     counts phantoms computed now (the rest came from the store). With ``image_cc``, ``probe_cc`` holds each
     probe's image correlation and ``image_figures`` the mean GREIT position figures (mm) over the probes
-    (:mod:`latticeopt.study.imaging`).
+    (:mod:`latticeopt.study.imaging`). ``min_reference_rel``: the smallest reference row over the largest, as the
+    model reported it (:func:`latticeopt.metric.smallest_reference_rel`).
     """
 
     score: float
@@ -51,6 +52,7 @@ class Assessment:
     probe_v: tuple[float, ...] = ()
     probe_cc: tuple[float, ...] = ()
     image_figures: dict = field(default_factory=dict)
+    min_reference_rel: float | None = None
 
 
 @dataclass(frozen=True)

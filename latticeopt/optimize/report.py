@@ -17,7 +17,7 @@ import numpy as np
 
 from .._jsonout import jsonable
 from ..study.imaging import FIGURES
-from ..study.report import write_csv
+from ..study.report import round_off_lines, write_csv
 from ..study.store import STORE_NAME, ResultStore
 from .problem import effective_bounds_text
 
@@ -41,6 +41,20 @@ def _title(result, what: str) -> str:
                       f"design{probes}\n{_mesh_caption(opt.study)}")
 
 
+def press_spread(a) -> tuple[float, float, float]:
+    """Median and largest V_rel over a design's solved random phantoms, and the largest one's share of their sum.
+
+    A mean carried by one or two presses (a press that nearly cuts an electrode off) reads very differently from
+    one every press supports; the median and the share tell which.
+    """
+    v = np.asarray(a.random_v, dtype=float) if a is not None else np.empty(0)
+    v = v[np.isfinite(v)]
+    if not len(v):
+        return math.nan, math.nan, math.nan
+    total = float(np.abs(v).sum())
+    return float(np.median(v)), float(v.max()), float(np.abs(v).max() / total) if total > 0 else math.nan
+
+
 def history_rows(result) -> list[dict]:
     """One dict per nlopt call: variables, score ± SE, terms, V_rel, constraints, bookkeeping."""
     rows = []
@@ -56,6 +70,7 @@ def history_rows(result) -> list[dict]:
         row.update(v_rel_mean=a.v_rel_mean if a else math.nan, v_rel_se=a.v_rel_se if a else math.nan,
                    n_ok=a.n_ok if a else 0, n_failed=a.n_failed if a else 0,
                    max_stretch=a.max_stretch if a and a.max_stretch is not None else math.nan)
+        row.update(zip(("v_rel_median", "v_rel_max", "v_rel_max_share"), press_spread(a)))
         row.update({f"g_{k}": g for k, g in s.constraints.items()})
         row.update(feasible=s.feasible, repeat=s.repeat, computed=a.computed if a and not s.repeat else 0,
                    seconds=a.seconds if a and not s.repeat else 0.0, nlopt_f=s.f, note=s.note,
@@ -204,9 +219,11 @@ def report_lines(result) -> list[str]:
         a = s.assessment
         failed = (f"; {a.n_failed} phantoms failed, so infeasible (the mean is over the {a.n_ok} others)"
                   if a.n_failed else "")
+        median, top, share = press_spread(a)
+        spread = f"; median press {median:.4g}, strongest {top:.4g} ({share:.0%} of the sum)"
         if obj.weights == (("mean", 1.0),):
             return (f"{_fmt_x(s.x)}: mean V_rel {a.v_rel_mean:.5g} ± {a.v_rel_se:.2g} (SE over phantoms, "
-                    f"n = {a.n_ok}{failed})")
+                    f"n = {a.n_ok}{failed}{spread})")
         image = ""
         if obj.needs_images:
             pe, off = (a.image_figures.get(k, math.nan) for k in ("position_error_mm", "position_offset_mm"))
@@ -215,7 +232,7 @@ def report_lines(result) -> list[str]:
         # V_rel mean and SE are over the random phantoms (assess_design); n_ok also counts the probes
         n_random = int(np.isfinite(np.asarray(a.random_v, dtype=float)).sum())
         return (f"{_fmt_x(s.x)}: score {s.score:.5g} ± {s.se:.2g}{image}, mean V_rel {a.v_rel_mean:.5g} ± "
-                f"{a.v_rel_se:.2g} (SE over the random phantoms, n = {n_random}{failed})")
+                f"{a.v_rel_se:.2g} (SE over the random phantoms, n = {n_random}{failed}{spread})")
 
     if result.optimum.start_step is not None and result.optimum.start_step.assessment is not None:
         lines.append("start:   " + describe(result.optimum.start_step))
@@ -233,6 +250,8 @@ def report_lines(result) -> list[str]:
         active = [k for k, g in result.best.constraints.items() if g > -1e-3]
         if active:
             lines.append("constraints active at the optimum: " + ", ".join(active))
+    lines += round_off_lines([(_fmt_x(s.x), s.assessment.min_reference_rel) for s in fresh],
+                             opt.study.settings.physics_settings.measurement_floor_rel)
     for st in result.optimum.starts:
         lines.append(f"start {st.index} from {_fmt_x(st.x0)}: {st.result} after {st.evaluations} calls"
                      + (f" ({st.message})" if st.message else ""))

@@ -59,6 +59,7 @@ def assess_design(design: LatticeDesign, *, phantoms: Sequence[Phantom], probes:
     ``None`` builds it afresh), :mod:`latticeopt.study.imaging`.
     """
     from ..study.engine import evaluate_designs
+    from ..study.report import smallest_reference
 
     t0 = time.perf_counter()
     evs, computed = evaluate_designs([design], list(phantoms) + list(probes), settings, out_dir, evaluate,
@@ -81,7 +82,7 @@ def assess_design(design: LatticeDesign, *, phantoms: Sequence[Phantom], probes:
                       n_failed=len(evs) - n_ok, max_stretch=stretch, computed=computed,
                       seconds=time.perf_counter() - t0, design_key=design.content_hash(),
                       random_v=tuple(float(x) for x in rnd), probe_v=tuple(float(x) for x in prb), probe_cc=cc,
-                      image_figures=figures)
+                      image_figures=figures, min_reference_rel=smallest_reference(evs))
 
 
 # -- running a study ------------------------------------------------------------------------------------------

@@ -44,8 +44,9 @@ from .config import Study
 from .layout_plot import plot_layouts
 from .store import Evaluation
 
-__all__ = ["best_design", "comparison_set", "mean_se", "paired_to_best", "press_curves", "press_ratios",
-           "results_rows", "summarize", "write_csv", "write_outputs", "write_tables_and_figures"]
+__all__ = ["ROUND_OFF_REL", "best_design", "comparison_set", "mean_se", "paired_to_best", "press_curves",
+           "press_ratios", "results_rows", "round_off_lines", "smallest_reference",
+           "summarize", "write_csv", "write_outputs", "write_tables_and_figures"]
 
 
 def mean_se(values: Sequence[float]) -> tuple[float, float]:
@@ -183,6 +184,35 @@ def paired_to_best(study: Study, evaluations: Sequence[Evaluation]) -> list[dict
             row[f"diff_{k}_touch"], row[f"diff_{k}_touch_se"] = dk, sek
         rows.append(row)
     return rows
+
+
+#: Reference rows below this fraction of the largest are beyond any instrument's resolution; on a dead-end channel
+#: they are the solver's round-off (:mod:`latticeopt.metric`).
+ROUND_OFF_REL = 1e-6
+
+
+def round_off_lines(smallest: Sequence[tuple[str, float | None]], floor_rel: float) -> list[str]:
+    """Warnings for designs whose ``V_rel`` divides by reference rows below :data:`ROUND_OFF_REL` of the largest.
+
+    ``smallest`` holds ``(design label, min |V_ref| / max |V_ref|)`` pairs (``None`` where the model did not
+    report it); nothing is said when ``floor_rel`` (``[physics] measurement_floor_rel``) already lifts such rows.
+    """
+    bad = [(label, r) for label, r in smallest if r is not None and r < max(ROUND_OFF_REL, floor_rel)]
+    if not bad or floor_rel >= ROUND_OFF_REL:
+        return []
+    worst = min(r for _, r in bad)
+    names = ", ".join(label for label, _ in bad[:4]) + (f" and {len(bad) - 4} more" if len(bad) > 4 else "")
+    return [f"warning: reference rows down to {worst:.1g} of the largest in {counted(len(bad), 'design')} ({names}): "
+            "electrodes on a dead-end channel, so V_rel includes ratios of round-off; set "
+            "physics.measurement_floor_rel (1e-4: an 80 dB instrument) to count those rows at a real "
+            "instrument's resolution"]
+
+
+def smallest_reference(evaluations: Sequence[Evaluation]) -> float | None:
+    """The smallest ``min_reference_rel`` the model reported over ``evaluations`` (``None``: none reported)."""
+    got = [e.extra.get("min_reference_rel") for e in evaluations if e.ok]
+    got = [float(r) for r in got if r is not None]
+    return min(got) if got else None
 
 
 def write_csv(path: Path, rows: Sequence[dict]) -> Path:
@@ -342,6 +372,9 @@ def write_outputs(study: Study, evaluations: Sequence[Evaluation], out: Path) ->
                 lines.append("paired difference to the best (mean ± SE over the common phantoms):")
                 lines += [f"  {r['design']}: {r['diff_to_best']:+.5f} ± {r['diff_se']:.5f} "
                           f"({100 * r['diff_fraction']:+.1f} %)" for r in paired[1:]]
+    lines += round_off_lines([(_fmt(d, study.grid_fields), smallest_reference(evs))
+                              for d, evs in zip(study.designs, _by_design(study, evaluations))],
+                             study.settings.physics_settings.measurement_floor_rel)
     lines += cmp_lines + _layout_legend(study)
     (out / "report.txt").write_text("\n".join(lines) + "\n")
     files["report"] = out / "report.txt"
