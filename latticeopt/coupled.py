@@ -21,7 +21,8 @@ the mechanics mesh itself, and the result says so (``electrics_mesh = "mechanics
 
 ``V_rel = mean_i |V_i - V_i_ref| / |V_i_ref|`` over the measurement rows (paper eq. 5). With the adjacent
 protocol the 208 rows are the 104 independent ones twice (reciprocity), so the mean over 208 equals the mean
-over the 104 the paper quotes.
+over the 104 the paper quotes. ``PhysicsSettings.measurement_floor_rel`` divides by an instrument's floor instead
+where a row is smaller (:mod:`latticeopt.metric`: a layout with dead-end channels has rows at round-off).
 """
 
 from __future__ import annotations

@@ -10,6 +10,14 @@ relative change is then a ratio of round-off, and can carry the mean (V_rel of 5
 ``floor_rel`` models the instrument's resolution: ``d_i = max(|V_i_ref|, floor_rel * max_j |V_j_ref|)``, so a row
 below the floor counts with the change an instrument of that dynamic range would see relative to its floor.
 ``floor_rel = 0`` is eq. 5 as published. :func:`smallest_reference_rel` tells whether a design has such rows.
+
+>>> import numpy as np
+>>> from latticeopt.metric import relative_change
+>>> ref, touched = np.array([1.0, 0.5, 1e-15]), np.array([1.1, 0.5, 3e-15])
+>>> round(relative_change(touched, ref), 4)  # the third row, round-off, reads a change of 200 %
+0.7
+>>> round(relative_change(touched, ref, floor_rel=1e-4), 4)  # an 80 dB instrument sees none there
+0.0333
 """
 
 from __future__ import annotations
