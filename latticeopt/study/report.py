@@ -186,9 +186,9 @@ def paired_to_best(study: Study, evaluations: Sequence[Evaluation]) -> list[dict
     return rows
 
 
-#: Reference rows below this fraction of the largest are beyond any instrument's resolution; on a dead-end channel
-#: they are the solver's round-off (:mod:`latticeopt.metric`).
-ROUND_OFF_REL = 1e-6
+#: Reference rows below this fraction of the largest are round-off (a dead-end channel's, 1e-11 to 1e-18 measured)
+#: rather than a physically small row (the square lattice's smallest, 4e-7 at w = 1); :mod:`latticeopt.metric`.
+ROUND_OFF_REL = 1e-8
 
 
 def round_off_lines(smallest: Sequence[tuple[str, float | None]], floor_rel: float) -> list[str]:
@@ -203,7 +203,7 @@ def round_off_lines(smallest: Sequence[tuple[str, float | None]], floor_rel: flo
     worst = min(r for _, r in bad)
     names = ", ".join(label for label, _ in bad[:4]) + (f" and {len(bad) - 4} more" if len(bad) > 4 else "")
     return [f"warning: reference rows down to {worst:.1g} of the largest in {counted(len(bad), 'design')} ({names}): "
-            "electrodes on a dead-end channel, so V_rel includes ratios of round-off; set "
+            "round-off (electrodes on a dead-end channel), so V_rel includes ratios of round-off; set "
             "physics.measurement_floor_rel (1e-4: an 80 dB instrument) to count those rows at a real "
             "instrument's resolution"]
 
