@@ -564,6 +564,7 @@ def test_report_warns_of_reference_rows_at_round_off(tmp_path, floor, warned):
     res = run_sweep(load_study(path), fake_evaluate_dead_ends, progress=False)
     lines = [line for line in res.report if line.startswith("warning:") and "round-off" in line]
     assert len(lines) == int(warned)
+    assert ("instrument floor of 0.0001" in res.report[0]) == (floor > 0)  # the report says which V_rel it read
     if warned:  # names the design with the dead end, not the other, and the key that mends it
         assert "(width = 2 mm)" in lines[0] and "width = 0" not in lines[0]
         assert "1e-12" in lines[0] and "physics.measurement_floor_rel" in lines[0]

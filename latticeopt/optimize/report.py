@@ -17,7 +17,7 @@ import numpy as np
 
 from .._jsonout import jsonable
 from ..study.imaging import FIGURES
-from ..study.report import round_off_lines, write_csv
+from ..study.report import floor_text, round_off_lines, write_csv
 from ..study.store import STORE_NAME, ResultStore
 from .problem import effective_bounds_text
 
@@ -210,7 +210,8 @@ def report_lines(result) -> list[str]:
              f"{len(fresh) * n_ph - result.computed} read from the store; "
              f"{sum(s.assessment.n_failed for s in fresh)} phantoms failed (a design with a failed phantom is "
              f"infeasible: {sum(s.assessment.n_failed > 0 for s in fresh)} designs)",
-             f"objective: maximize {obj.describe()}; effective bounds {effective_bounds_text(opt.problem)}"]
+             f"objective: maximize {obj.describe()}; effective bounds {effective_bounds_text(opt.problem)}"
+             + floor_text(opt.study.settings.physics_settings.measurement_floor_rel)]
     lines += [f"bound tightened: {t}" for t in opt.problem.folded]
     if opt.problem.general or opt.config.constraints.max_hydrogel_stretch is not None:
         lines.append(f"nonlinear constraints via {opt.config.resolved_constraint_method(opt.problem)}")

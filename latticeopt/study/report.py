@@ -44,7 +44,7 @@ from .config import Study
 from .layout_plot import plot_layouts
 from .store import Evaluation
 
-__all__ = ["ROUND_OFF_REL", "best_design", "comparison_set", "mean_se", "paired_to_best", "press_curves",
+__all__ = ["ROUND_OFF_REL", "best_design", "comparison_set", "mean_se", "floor_text", "paired_to_best", "press_curves",
            "press_ratios", "results_rows", "round_off_lines", "smallest_reference",
            "summarize", "write_csv", "write_outputs", "write_tables_and_figures"]
 
@@ -208,6 +208,11 @@ def round_off_lines(smallest: Sequence[tuple[str, float | None]], floor_rel: flo
             "instrument's resolution"]
 
 
+def floor_text(floor_rel: float) -> str:
+    """``"; V_rel with an instrument floor of ..."`` for a report line, or ``""`` for the paper's eq. 5."""
+    return f"; V_rel with an instrument floor of {floor_rel:g} of the largest row" if floor_rel > 0 else ""
+
+
 def smallest_reference(evaluations: Sequence[Evaluation]) -> float | None:
     """The smallest ``min_reference_rel`` the model reported over ``evaluations`` (``None``: none reported)."""
     got = [e.extra.get("min_reference_rel") for e in evaluations if e.ok]
@@ -329,7 +334,8 @@ def write_outputs(study: Study, evaluations: Sequence[Evaluation], out: Path) ->
     files = {"results": write_csv(out / "results.csv", results_rows(study, evaluations))}
     failed = sum(not e.ok for e in evaluations)
     lines = [f"{study.name}: {counted(len(study.designs), 'design')} x {counted(len(study.phantoms), 'phantom')} "
-             f"= {counted(len(evaluations), 'evaluation')}, {failed} failed"]
+             f"= {counted(len(evaluations), 'evaluation')}, {failed} failed"
+             + floor_text(study.settings.physics_settings.measurement_floor_rel)]
     cmp_lines, excluded_rows = _comparison_lines(study, evaluations)
     if excluded_rows:
         files["excluded"] = write_csv(out / "excluded.csv", excluded_rows)
