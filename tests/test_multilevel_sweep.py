@@ -367,6 +367,19 @@ def test_coarse_evaluations_whose_electrics_fell_back_are_marked_and_counted(tmp
     assert "folded in 2 of 72 evaluations" in (res.out_dir / "report.txt").read_text()
 
 
+def fake_two_level_dead_end(design, phantom, settings) -> dict:
+    """TEST DOUBLE: as fake_two_level; the w = 4 design reports reference rows at round-off."""
+    return {**fake_two_level(design, phantom, settings), "min_reference_rel": 1e-13 if design.width_mm == 4 else 1e-3}
+
+
+@pytest.mark.parametrize("overrides, warned", [((), True), (("physics.measurement_floor_rel=1e-4",), False)])
+def test_report_warns_of_rows_at_round_off_unless_a_floor_is_set(tmp_path, overrides, warned):
+    res = run_sweep(_study(tmp_path, overrides=overrides), fake_two_level_dead_end, progress=False)
+    lines = [x for x in res.report if x.startswith("warning:")]
+    assert [("(width = 4 mm)" in x, "width = 2" in x) for x in lines] == ([(True, False)] if warned else [])
+    assert ("instrument floor of 0.0001" in res.report[1]) == (not warned)
+
+
 def test_the_figure_says_it_shows_a_two_level_estimate_and_how_many_fine_phantoms(tmp_path, saved_figures):
     study = _study(tmp_path)
     ml = run_sweep(study, fake_two_level, progress=False).multilevel

@@ -27,7 +27,7 @@ from ..captions import counted
 from .config import Study
 from .multilevel import multilevel_estimate
 from .multilevel_sweep import MultilevelRun
-from .report import _fmt, _value, write_tables_and_figures
+from .report import _fmt, _value, floor_text, round_off_lines, smallest_reference, write_tables_and_figures
 
 __all__ = ["model_seconds", "multilevel_summary", "paired_difference", "write_multilevel_outputs"]
 
@@ -154,6 +154,7 @@ def write_multilevel_outputs(study: Study, run: MultilevelRun, out: Path) -> tup
     nph = len(study.phantoms)
     c, f = ml.coarse, run.fine_settings.mesh
     extra = "".join(f", {k} = {v}" for k, v in ml.coarse_physics)
+    floor = run.fine_settings.physics_settings.measurement_floor_rel
     lines = [f"{study.name}: {counted(len(study.designs), 'design')} x {counted(nph, 'phantom')}; "
              "two-level estimator: coarse mesh "
              f"{c.size_mm:g} mm ({c.channel_cells} channel cells, electrics on the {ml.coarse_electrics} mesh{extra}) "
@@ -167,7 +168,7 @@ def write_multilevel_outputs(study: Study, run: MultilevelRun, out: Path) -> tup
              f"phantoms used: {len(run.used)} of {nph} (those every compared design solved at both levels where "
              f"run); fine phantoms per design: {min(run.n_fine[i] for i in run.compared) if run.compared else 0}"
              f"-{max(run.n_fine) if run.compared else 0}; computed now: {run.computed_coarse} coarse, "
-             f"{run.computed_fine} fine"]
+             f"{run.computed_fine} fine" + floor_text(floor)]
     cost = model_seconds(study, run)
     if cost["fine"] > 0:
         lines.append(f"model time: {cost['coarse'] / 3600:.2f} h coarse + {cost['fine'] / 3600:.2f} h fine = "
@@ -195,6 +196,9 @@ def write_multilevel_outputs(study: Study, run: MultilevelRun, out: Path) -> tup
         z = d.mean / d.se if d.se else math.nan
         lines.append(f"best minus runner-up (two-level, paired over common phantoms: coarse over {d.n_coarse}, "
                      f"fine over {d.n_fine}): {d.mean:.5f} ± {d.se:.5f} (z = {z:.1f})")
+    fine_by_design = [[e for (i, _), e in run.fine.items() if i == k] for k in range(len(study.designs))]
+    lines += round_off_lines([(_fmt(d, study.grid_fields), smallest_reference(evs))
+                              for d, evs in zip(study.designs, fine_by_design)], floor)
     (out / "report.txt").write_text("\n".join(lines) + "\n")
     files["report"] = out / "report.txt"
     stale = out / "excluded.csv"
