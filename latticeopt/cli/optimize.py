@@ -59,6 +59,7 @@ def run_optimize_command(args: argparse.Namespace) -> int:
     from ..errors import AllFailedError
     from ..optimize import effective_bounds_text, run_optimization
     from ..optimize.categories import write_summary
+    from ..study.report import floor_text
 
     check_study_file(args.study)
     from ..optimize.categories import categorical_optimizations
@@ -81,7 +82,8 @@ def run_optimize_command(args: argparse.Namespace) -> int:
                   f"{effective_bounds_text(problem)}; start {dict(zip(problem.names, problem.start))}; "
                   f"{len(study.phantoms)} phantoms + {len(opt.probes)} probes per design; max_evals "
                   f"{cfg.max_evals}; model {study.settings.model}; mesh {study.settings.mesh.mesher} "
-                  f"{study.settings.mesh.size_mm:g} mm; out {study.out_dir}")
+                  f"{study.settings.mesh.size_mm:g} mm; out {study.out_dir}"
+                  + floor_text(study.settings.physics_settings.measurement_floor_rel))
             for t in problem.folded:
                 print(f"bound tightened: {t}")
         return 0
