@@ -24,7 +24,11 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["relative_change", "relative_change_partials", "smallest_reference_rel"]
+__all__ = ["ROUND_OFF_REL", "relative_change", "relative_change_partials", "smallest_reference_rel"]
+
+#: Reference rows below this fraction of the largest are round-off (a dead-end channel's, 1e-11 to 1e-18 measured)
+#: rather than a physically small row (the square lattice's smallest, 4e-7 at w = 1).
+ROUND_OFF_REL = 1e-8
 
 
 def _denominators(reference: np.ndarray, floor_rel: float) -> tuple[np.ndarray, float, np.ndarray]:

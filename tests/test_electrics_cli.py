@@ -25,6 +25,17 @@ def test_forward_json(capsys):
     assert out["contact_number"] == pytest.approx(DEFAULT_CONTACT_IMPEDANCE_OHM_M2 * DEFAULT_SIGMA_S_PER_M / 4e-3)
 
 
+@pytest.mark.parametrize("pattern, width, dead", [("diagonal", "3", True), ("square", "4", False)])
+def test_forward_names_rows_at_round_off(pattern, width, dead, capsys):
+    """The diagonal lattice at w = 3 hangs its corner electrodes on dead-end channels: rows at round-off."""
+    args = ["forward", "--pattern", pattern, "--width", width, "--mesh-size", "5", "--channel-cells", "1", "--no-cache"]
+    assert main([*args, "--json"]) == 0
+    small = json.loads(capsys.readouterr().out)["min_reference_rel"]
+    assert (small < 1e-10) == dead and (small > 1e-6) == (not dead)
+    assert main(args) == 0
+    assert ("round-off" in capsys.readouterr().out) == dead
+
+
 def test_forward_fields(tmp_path, capsys):
     png, vtu = tmp_path / "f.png", tmp_path / "f.vtu"
     assert main(["forward", *COARSE, "--plot", str(png), "--plot-uniform", "--vtu", str(vtu), "--drive", "3"]) == 0

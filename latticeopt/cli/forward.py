@@ -50,6 +50,7 @@ def run_forward(args) -> int:
 
     from .. import _validate as v
     from ..electrics import ForwardModel, Protocol
+    from ..metric import ROUND_OFF_REL, smallest_reference_rel
 
     t0 = time.perf_counter()
     png = check_output_path("--plot", args.plot, suffixes=(".png",))
@@ -74,7 +75,7 @@ def run_forward(args) -> int:
         "design": design.as_dict(), "protocol": protocol.name,
         "voltages": V, "independent": V[protocol.independent], "independent_rows": protocol.independent,
         "meas_pairs": protocol.meas_pairs, "row_drive": protocol.row_drive,
-        "reciprocity_error": model.reciprocity_error(),
+        "reciprocity_error": model.reciprocity_error(), "min_reference_rel": smallest_reference_rel(V),
         "sigma_S_per_m": args.sigma, "contact_impedance_ohm_m2": args.contact_impedance,
         "current_A": args.current, "contact_number": model.contact_number,
         "electrode_mode": args.electrode_mode,
@@ -106,6 +107,10 @@ def run_forward(args) -> int:
           f"(z_c sigma / w = {model.contact_number:.3g}), I = {args.current * 1e3:g} mA")
     print(f"{protocol.name} protocol: {protocol.n_rows} measurements ({len(protocol.independent)} independent), "
           f"reciprocity error {out['reciprocity_error']:.2e}")
+    small = out["min_reference_rel"]
+    print(f"smallest measurement: {small:.1e} of the largest"
+          + (" (round-off: electrodes on a dead-end channel, whose V_rel rows eq. 5 cannot read; see the "
+             "[physics] key measurement_floor_rel)" if small < ROUND_OFF_REL else ""))
     with np.printoptions(precision=5, suppress=False, linewidth=110):
         print("voltages (V), one row per drive:")
         for d in range(protocol.n_drives):

@@ -35,6 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from ..captions import counted
+from ..metric import ROUND_OFF_REL
 
 # imported with the report, not when it is written: a run that outlives an upgrade of the package still writes
 # its outputs with the code it started with (both import matplotlib only when they draw)
@@ -184,11 +185,6 @@ def paired_to_best(study: Study, evaluations: Sequence[Evaluation]) -> list[dict
             row[f"diff_{k}_touch"], row[f"diff_{k}_touch_se"] = dk, sek
         rows.append(row)
     return rows
-
-
-#: Reference rows below this fraction of the largest are round-off (a dead-end channel's, 1e-11 to 1e-18 measured)
-#: rather than a physically small row (the square lattice's smallest, 4e-7 at w = 1); :mod:`latticeopt.metric`.
-ROUND_OFF_REL = 1e-8
 
 
 def round_off_lines(smallest: Sequence[tuple[str, float | None]], floor_rel: float) -> list[str]:
