@@ -4,7 +4,7 @@
 A layout can make some reference rows vanish: two electrodes that hang on one dead-end branch of the channels
 (the diagonal lattice's corner channel below w = 4.4 mm at p = 12.5 mm joins two electrodes and meets the rest of the
 network at a single crossing) are at one potential whenever the current is driven elsewhere, and are measured
-at 1e-6 to 1e-15 of the largest row: values no instrument resolves, and down to the solver's round-off. Their
+at 1e-6 down to 1e-18 of the largest row: values no instrument resolves, down to the solver's round-off. Their
 relative change is then a ratio of round-off, and can carry the mean (V_rel of 50 from one press).
 
 ``floor_rel`` models the instrument's resolution: ``d_i = max(|V_i_ref|, floor_rel * max_j |V_j_ref|)``, so a row

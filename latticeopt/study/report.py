@@ -193,13 +193,15 @@ def round_off_lines(smallest: Sequence[tuple[str, float | None]], floor_rel: flo
     ``smallest`` holds ``(design label, min |V_ref| / max |V_ref|)`` pairs (``None`` where the model did not
     report it); nothing is said when ``floor_rel`` (``[physics] measurement_floor_rel``) already lifts such rows.
     """
-    bad = [(label, r) for label, r in smallest if r is not None and r < max(ROUND_OFF_REL, floor_rel)]
-    if not bad or floor_rel >= ROUND_OFF_REL:
+    if floor_rel >= ROUND_OFF_REL:
+        return []
+    bad = [(label, r) for label, r in smallest if r is not None and r < ROUND_OFF_REL]
+    if not bad:
         return []
     worst = min(r for _, r in bad)
     names = ", ".join(label for label, _ in bad[:4]) + (f" and {len(bad) - 4} more" if len(bad) > 4 else "")
     return [f"warning: reference rows down to {worst:.1g} of the largest in {counted(len(bad), 'design')} ({names}): "
-            "round-off (electrodes on a dead-end channel), so V_rel includes ratios of round-off; set "
+            "round-off (electrodes on a dead-end channel), which V_rel divides by; set "
             "physics.measurement_floor_rel (1e-4: an 80 dB instrument) to count those rows at a real "
             "instrument's resolution"]
 
