@@ -280,3 +280,20 @@ def test_early_stopping_is_unbiased_for_normal_values_and_biased_low_for_right_s
     skewed = _adaptive_bias(rng, lambda g: g.lognormal(math.log(0.06) - sig * sig / 2, sig, 300), 0.06)
     assert abs(normal) < 0.12  # Monte Carlo SE of the estimate about 0.03
     assert -0.6 < skewed < -0.15
+
+
+def fake_spread_dead_ends(design, phantom, settings) -> dict:
+    """TEST DOUBLE: as fake_spread, and the w = 3 design reports reference rows at round-off (a dead end)."""
+    return {**fake_spread(design, phantom, settings), "min_reference_rel": 1e-13 if design.width_mm == 3 else 0.01}
+
+
+@pytest.mark.parametrize("floor", [0.0, 1e-4])
+def test_report_warns_of_reference_rows_at_round_off(tmp_path, floor):
+    study = _study(tmp_path, tail=f"[physics]\nmeasurement_floor_rel = {floor}\n")
+    res = run_sweep(study, fake_spread_dead_ends, progress=False)
+    lines = [line for line in res.report if line.startswith("warning:") and "round-off" in line]
+    assert len(lines) == (floor == 0)  # a floor lifts the rows: nothing to warn of
+    assert ("instrument floor of 0.0001" in res.report[1]) == (floor > 0)
+    if lines:  # names only the design with the dead end, and the key that mends it
+        assert "(width = 3 mm)" in lines[0] and "width = 2" not in lines[0] and "width = 4" not in lines[0]
+        assert "1e-13" in lines[0] and "physics.measurement_floor_rel" in lines[0]

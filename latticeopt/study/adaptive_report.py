@@ -20,7 +20,7 @@ from pathlib import Path
 from ..captions import counted
 from .adaptive_sweep import AdaptiveRun
 from .config import Study
-from .report import _fmt, _value, mean_se, write_tables_and_figures
+from .report import _fmt, _value, floor_text, mean_se, round_off_lines, smallest_reference, write_tables_and_figures
 
 __all__ = ["adaptive_summary", "paired_difference", "write_adaptive_outputs"]
 
@@ -107,13 +107,14 @@ def write_adaptive_outputs(study: Study, run: AdaptiveRun, out: Path) -> tuple[d
     files = write_tables_and_figures(study, _result_rows(study, run), summary, out)
     nph = len(study.phantoms)
     used = [run.n[i] for i in run.compared]
+    floor = study.settings.physics_settings.measurement_floor_rel
     lines = [f"{study.name}: {counted(len(study.designs), 'design')} x up to {counted(nph, 'phantom')}; "
              "adaptive counts: "
              f"{ad.min_per_design} first, then {ad.batch_size} more at a time until SE <= {ad.target_se:g} (V_rel) "
              "or every phantom is run; one common order, touch counts interleaved",
              f"phantoms per design: {min(used, default=0)}-{max(used, default=0)} of {len(run.order)}; "
              f"{len(run.evaluations)} evaluations ({run.computed} computed now), "
-             f"{sum(not e.ok for e in run.evaluations.values())} failed"]
+             f"{sum(not e.ok for e in run.evaluations.values())} failed" + floor_text(floor)]
     order = sorted((i for i in run.compared if summary[i]["n"] > 0), key=lambda i: -summary[i]["v_rel_mean"])
     for rank, i in enumerate(order, 1):
         s = summary[i]
@@ -126,6 +127,9 @@ def write_adaptive_outputs(study: Study, run: AdaptiveRun, out: Path) -> tuple[d
         lines.append(f"best minus runner-up (paired over the {m} phantoms both ran): {d:.5f} ± {se:.5f} (z = {z:.1f})")
     elif not order:
         lines.append("no design compared: every phantom failed for every design")
+    lines += round_off_lines([(_fmt(d, study.grid_fields),
+                               smallest_reference([e for (i, _), e in run.evaluations.items() if i == k]))
+                              for k, d in enumerate(study.designs)], floor)
     lines += _exclusion_lines(study, run)
     (out / "report.txt").write_text("\n".join(lines) + "\n")
     files["report"] = out / "report.txt"
