@@ -124,6 +124,43 @@ def test_each_algorithm_honours_bounds_and_finds_the_known_optimum(alg):
         assert res.best.score >= _f(W_OPT, T_OPT) - 0.01 * (_f(W_OPT, T_OPT) - _f(8.0, 1.0))
 
 
+def _narrowest_island_mm(design) -> float:
+    """Diameter of the largest circle inside the roomiest silicone island away from the sensor's edge (shapely)."""
+    import shapely
+
+    gel = design.footprint()
+    holes = [shapely.Polygon(ring) for g in getattr(gel, "geoms", [gel]) for ring in g.interiors]
+    return max(2 * shapely.maximum_inscribed_circle(h, 1e-4).length for h in holes)
+
+
+def _rim_channel_mm(design) -> float:
+    """Depth of hydrogel from the y = 0 edge, least over x between the lattice's lines (shapely)."""
+    import shapely
+
+    gel = design.footprint()
+    depths = []
+    for x in np.linspace(1.0, design.size_mm - 1.0, 397):
+        cut = gel.intersection(shapely.LineString([(x, 0.0), (x, design.size_mm / 2)]))
+        first = min(getattr(cut, "geoms", [cut]), key=lambda seg: seg.bounds[1])
+        depths.append(first.length)
+    return min(depths)
+
+
+@pytest.mark.parametrize("pattern, rim", [("square", "none"), ("square", "channel"), ("triangular", "none"),
+                                          ("hexagonal", "channel")])
+def test_fabrication_limits_fold_to_the_widths_where_the_layout_meets_them(pattern, rim):
+    # measured on the laid-out footprint, not from the constraint's formula: at the folded lower bound the
+    # narrowest channel (the rim channel, w / 2, when there is one) is min_channel_mm; at the upper bound the
+    # islands are min_island_mm across their inscribed circle (the triangular lattice's 2/3 p - w)
+    limits = Constraints(min_channel_mm=1.5, min_island_mm=2.0)
+    start = LatticeDesign(pattern=pattern, rim=rim, width_mm=4.0, pitch_mm=12.5)
+    problem = Problem.build(start, (Variable("width_mm", 0.5, 12.0, 4.0),), limits)
+    (lo,), (hi,) = problem.lower, problem.upper
+    narrowest = _rim_channel_mm(problem.design(np.array([lo]))) if rim == "channel" else lo
+    assert narrowest == pytest.approx(limits.min_channel_mm, abs=0.01)
+    assert _narrowest_island_mm(problem.design(np.array([hi]))) == pytest.approx(limits.min_island_mm, abs=0.01)
+
+
 WP = (Variable("width_mm", 1.0, 8.0, 2.0), Variable("pitch_mm", 4.0, 14.0, 10.0))
 
 

@@ -10,8 +10,9 @@ stopping rules. Every candidate design is evaluated on the study's fixed phantom
 (:func:`latticeopt.study.sweep.evaluate_designs`), so every phantom result lands in the same SQLite store as sweeps
 and a design already stored is read, not recomputed.
 
-Constraints. The fabrication constraints are linear in the design fields: channel width ``w >= min_channel_mm``,
-island ``p - w >= min_island_mm``, substrate ``H - sealing - t >= min_substrate_mm``. One that involves a single
+Constraints. The fabrication constraints are linear in the design fields: channel width ``w >= min_channel_mm``
+(the rim channel's ``w / 2`` with ``rim = "channel"``), island ``p - w >= min_island_mm`` (triangular: the
+island's inscribed circle, ``2/3 p - w``), substrate ``H - sealing - t >= min_substrate_mm``. One that involves a single
 free variable is folded into that variable's bounds (every algorithm honours bounds), one with no free variable
 is checked on load, and one coupling several variables (e.g. ``w`` and ``p`` both free) stays a nonlinear
 inequality, as does ``max_hydrogel_stretch`` (the largest hydrogel stretch over the phantoms, from the

@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING
 
 from .. import _validate as v
 from ..errors import ParameterError
+from ..layout import MAX_WIDTH_FRACTION
 from .objectives import Objective
 
 if TYPE_CHECKING:
@@ -64,9 +65,9 @@ class Constraints:
     Parameters
     ----------
     min_channel_mm
-        Narrowest hydrogel channel that can be made.
+        Narrowest hydrogel channel that can be made (``w``; the rim channel is ``w / 2``).
     min_island_mm
-        Smallest silicone island side ``p - w`` that can be made.
+        Narrowest silicone island that can be made (``p - w``; triangular ``2/3 p - w``).
     min_substrate_mm
         Thinnest substrate ``H - sealing - t`` (0: only non-negative).
     max_hydrogel_stretch
@@ -86,10 +87,17 @@ class Constraints:
             object.__setattr__(self, "max_hydrogel_stretch", v.real("max_hydrogel_stretch",
                                                                     self.max_hydrogel_stretch, lo=1, lo_open=True))
 
-    def linear(self) -> tuple[LinearConstraint, ...]:
-        """The fabrication limits as ``sum(a * field) <= b``."""
-        return (LinearConstraint("min_channel_mm", (("width_mm", -1.0),), -self.min_channel_mm),
-                LinearConstraint("min_island_mm", (("width_mm", 1.0), ("pitch_mm", -1.0)),
+    def linear(self, pattern: str = "square", rim: str = "none") -> tuple[LinearConstraint, ...]:
+        """The fabrication limits of a ``pattern`` lattice with ``rim`` as ``sum(a * field) <= b``.
+
+        The narrowest channel is ``w``, or the rim channel's ``w / 2`` with ``rim = "channel"``; the narrowest
+        island is ``f p - w`` with ``f`` the family's no-island fraction (1; 2/3 for the triangular lattice,
+        whose islands' inscribed circle is ``2/3 p - w`` across).
+        """
+        narrowest = 0.5 if rim == "channel" else 1.0
+        f = MAX_WIDTH_FRACTION.get(pattern, 1.0)
+        return (LinearConstraint("min_channel_mm", (("width_mm", -narrowest),), -self.min_channel_mm),
+                LinearConstraint("min_island_mm", (("width_mm", 1.0), ("pitch_mm", -f)),
                                  -max(self.min_island_mm, STRICT_MARGIN_MM)),
                 LinearConstraint("min_substrate_mm", (("thickness_mm", 1.0), ("sealing_mm", 1.0),
                                                       ("total_thickness_mm", -1.0)), -self.min_substrate_mm))

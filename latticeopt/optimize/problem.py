@@ -40,7 +40,7 @@ class Problem:
         hi = {x.name: x.upper for x in variables}
         fixed = start_design.as_dict()
         general, folded = [], []
-        for c in constraints.linear():
+        for c in constraints.linear(start_design.pattern, start_design.rim):
             if c.name == "min_channel_mm" and "width_mm" not in names and not start_design.has_lattice:
                 continue  # a uniform layer has no channel
             free = [(f, a) for f, a in c.coefficients if f in names]
