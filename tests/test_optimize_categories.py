@@ -71,7 +71,8 @@ def test_cli_ranks_the_combinations(tmp_path):
            "--evaluate", "test_optimize_categories:family_evaluate"]
     done = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
-    ranked = [line.split(":")[0].strip() for line in done.stdout.split("categories ranked")[1].splitlines()[1:]]
+    ranked = [line.split(":")[0].strip() for line in done.stdout.split("categories ranked")[1].splitlines()[1:]
+              if line.startswith("  ")]
     assert ranked == ["pattern-hexagonal_rim-none", "pattern-square_rim-none", "pattern-square_rim-channel",
                       "pattern-hexagonal_rim-channel"]
     with open(tmp_path / "out" / "categories.csv") as fh:
@@ -81,6 +82,25 @@ def test_cli_ranks_the_combinations(tmp_path):
         assert float(r["v_rel_median"]) == pytest.approx(float(r["score"]), rel=1e-12)
         assert float(r["v_rel_max_share"]) == pytest.approx(0.5, rel=1e-12)
     assert "median press" in done.stdout
+    assert f"wrote figure: {tmp_path / 'out' / 'categories.png'}" in done.stdout  # every path on one axis
+    assert (tmp_path / "out" / "categories.png").stat().st_size > 10_000
+
+
+def test_the_figure_needs_one_shared_variable(tmp_path):
+    import matplotlib.image
+
+    from latticeopt.optimize.categories import plot_categories
+
+    p = _study(tmp_path)
+    runs = load_categories(p)
+    pairs = [(r, run_optimization(r.optimization, family_evaluate, outputs=False)) for r in runs[:2]]
+    assert plot_categories(pairs, tmp_path / "one.png") == tmp_path / "one.png"
+    assert matplotlib.image.imread(tmp_path / "one.png").ndim == 3
+    p.write_text(p.read_text().replace("[optimize.categories]", "thickness_mm = { lower = 2.0, upper = 4.0, "
+                                       "start = 3.0 }\n[optimize.categories]").replace("thickness_mm = 3.0\n", ""))
+    runs = load_categories(p)
+    pairs = [(r, run_optimization(r.optimization, family_evaluate, outputs=False)) for r in runs[:2]]
+    assert plot_categories(pairs, tmp_path / "two.png") is None and not (tmp_path / "two.png").exists()
 
 
 @pytest.mark.parametrize("change, match", [

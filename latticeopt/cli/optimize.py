@@ -58,7 +58,7 @@ def run_optimize_command(args: argparse.Namespace) -> int:
 
     from ..errors import AllFailedError
     from ..optimize import effective_bounds_text, run_optimization
-    from ..optimize.categories import write_summary
+    from ..optimize.categories import plot_categories, write_summary
     from ..study.report import floor_text
 
     check_study_file(args.study)
@@ -112,6 +112,9 @@ def run_optimize_command(args: argparse.Namespace) -> int:
         out = runs[0].optimization.study.out_dir.parent
         for line in write_summary(pairs, out / "categories.csv"):
             print(line)
+        figure = plot_categories(pairs, out / "categories.png")
+        if figure is not None:
+            print(f"wrote figure: {figure}")
         if len(all_failed) == len(runs):
             raise AllFailedError(f"every phantom evaluation failed in every category ({', '.join(all_failed)})")
     return 0

@@ -18,6 +18,7 @@ from __future__ import annotations
 import copy
 import csv
 import itertools
+import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -29,7 +30,8 @@ from .load import optimization_from_dict
 from .problem import Optimization
 from .report import press_spread
 
-__all__ = ["CATEGORICAL_FIELDS", "CategoryRun", "categorical_optimizations", "run_categories", "write_summary"]
+__all__ = ["CATEGORICAL_FIELDS", "CategoryRun", "categorical_optimizations", "plot_categories", "run_categories",
+           "write_summary"]
 
 #: Design fields an outer loop may take, with their allowed values.
 CATEGORICAL_FIELDS = {"pattern": tuple(p for p in PATTERNS if p != "custom"), "rim": RIMS,
@@ -124,3 +126,42 @@ def write_summary(pairs: Sequence[tuple], path: Path) -> list[str]:
                      f"median press {r['v_rel_median']:.4g}, the strongest {r['v_rel_max_share']:.0%} of the sum)")
     lines += [f"  {r['category']}: no feasible design" for r in rows if "score" not in r]
     return lines
+
+
+def plot_categories(pairs: Sequence[tuple], path: Path) -> Path | None:
+    """Every combination's feasible calls, score (± SE) against the one continuous variable, optima starred.
+
+    Colour follows the first categorical field (the family), line style the second (the rim layout). Returns
+    ``None`` (no figure) when the optimizations vary more than one variable: their paths do not share an axis.
+    """
+    from matplotlib.figure import Figure
+
+    names = {c.optimization.problem.names for c, _ in pairs}
+    if len(names) != 1 or len(next(iter(names))) != 1:
+        return None
+    (var,) = next(iter(names))
+    firsts = list(dict.fromkeys(str(c.values[0][1]) for c, _ in pairs if c.values))
+    seconds = list(dict.fromkeys(str(c.values[1][1]) for c, _ in pairs if len(c.values) > 1))
+    fig = Figure(figsize=(7.0, 4.4), layout="constrained")
+    ax = fig.add_subplot()
+    for c, res in pairs:
+        calls = sorted((s for s in res.history if s.feasible and not s.repeat), key=lambda s: s.x[var])
+        if not calls:
+            continue
+        colour = f"C{firsts.index(str(c.values[0][1])) % 10}" if c.values else "C0"
+        style = ("-", "--", ":", "-.")[seconds.index(str(c.values[1][1])) % 4] if len(c.values) > 1 else "-"
+        x = [s.x[var] for s in calls]
+        ax.errorbar(x, [s.score for s in calls], yerr=[s.se if math.isfinite(s.se) else 0.0 for s in calls],
+                    color=colour, ls=style, marker="o", ms=3, capsize=2, lw=1.2,
+                    label=", ".join(f"{k} {v}" for k, v in c.values) or "optimum")
+        if res.best is not None:
+            ax.plot(res.best.x[var], res.best.score, "*", color=colour, ms=12, mec="black", mew=0.6)
+    opt = pairs[0][0].optimization
+    ax.set_xlabel(var.replace("_mm", " (mm)").replace("_", " "))
+    ax.set_ylabel(opt.config.objective.describe())
+    ax.set_title(f"{opt.study.name}: every call of each combination (± SE over its "
+                 f"{len(opt.study.phantoms)} phantoms); * its optimum", fontsize=9)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize="small", ncols=2)
+    fig.savefig(path, dpi=130)
+    return path
