@@ -38,6 +38,8 @@ import numpy as np
 from .errors import ParameterError
 
 RIMS = ("none", "channel")
+#: The rim channel is this fraction of the channel width ``w`` wide (a channel on the outer boundary, cut in half).
+RIM_WIDTH_FRACTION = 0.5
 
 
 def _box(x0: float, y0: float, x1: float, y1: float):
@@ -233,7 +235,8 @@ def parametric_footprint(pattern: str, size_mm: float, width_mm: float, pitch_mm
         return _box(0, 0, L, L)
     net = _lattice(pattern, L, width_mm, pitch_mm, rim).intersection(inner)
     if rim == "channel":
-        band = inner.difference(_box(f + width_mm / 2, f + width_mm / 2, L - f - width_mm / 2, L - f - width_mm / 2))
+        r = RIM_WIDTH_FRACTION * width_mm
+        band = inner.difference(_box(f + r, f + r, L - f - r, L - f - r))
         net = net.union(band)
     return _clean(net)
 

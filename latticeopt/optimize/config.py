@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING
 
 from .. import _validate as v
 from ..errors import ParameterError
-from ..layout import MAX_WIDTH_FRACTION
+from ..layout import MAX_WIDTH_FRACTION, RIM_WIDTH_FRACTION
 from .objectives import Objective
 
 if TYPE_CHECKING:
@@ -94,7 +94,7 @@ class Constraints:
         island is ``f p - w`` with ``f`` the family's no-island fraction (1; 2/3 for the triangular lattice,
         whose islands' inscribed circle is ``2/3 p - w`` across).
         """
-        narrowest = 0.5 if rim == "channel" else 1.0
+        narrowest = RIM_WIDTH_FRACTION if rim == "channel" else 1.0
         f = MAX_WIDTH_FRACTION.get(pattern, 1.0)
         return (LinearConstraint("min_channel_mm", (("width_mm", -narrowest),), -self.min_channel_mm),
                 LinearConstraint("min_island_mm", (("width_mm", 1.0), ("pitch_mm", -f)),
