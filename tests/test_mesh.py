@@ -510,3 +510,6 @@ def test_narrowest_feature_is_the_channel_or_the_electrode():
     assert narrowest_feature_mm(LatticeDesign(width_mm=4)) == ("channel width w", 4.0)
     assert narrowest_feature_mm(LatticeDesign(width_mm=6)) == ("electrode width", 4.0)
     assert narrowest_feature_mm(LatticeDesign(width_mm=0)) == ("electrode width", 4.0)
+    # the rim channel is half a channel wide (the footprint tests measure it), so it is the narrowest feature
+    assert narrowest_feature_mm(LatticeDesign(width_mm=3, rim="channel")) == ("rim channel 0.5 w", 1.5)
+    assert narrowest_feature_mm(LatticeDesign(width_mm=10, rim="channel")) == ("electrode width", 4.0)

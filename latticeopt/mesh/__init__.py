@@ -27,6 +27,7 @@ from pathlib import Path
 from .. import _validate as v
 from ..design import LatticeDesign
 from ..errors import ParameterError
+from ..layout import RIM_WIDTH_FRACTION
 from .tetmesh import FORMAT_VERSION, TetMesh, electrode_name
 
 __all__ = ["MESHERS", "MeshSettings", "TetMesh", "electrode_name", "mesh_design", "default_cache_dir",
@@ -183,11 +184,14 @@ def _build(design: LatticeDesign, settings: MeshSettings) -> TetMesh:
 
 def narrowest_feature_mm(design: LatticeDesign) -> tuple[str, float]:
     """The narrowest in-plane feature of ``design`` a mesh has to resolve, as ``(name, width in mm)``: the
-    channel width ``w`` of a parametric lattice, or the electrode width if that is narrower (or there are no
-    channels: the uniform layer; a custom layout, whose polygons have no single width)."""
+    channel width ``w`` of a parametric lattice, its rim channel (``w / 2`` wide) if ``rim = "channel"``, or the
+    electrode width if that is narrower (or there are no channels: the uniform layer; a custom layout, whose
+    polygons have no single width)."""
     features = [("electrode width", design.electrode_width_mm)]
     if design.pattern != "custom" and design.width_mm > 0:
         features.insert(0, ("channel width w", design.width_mm))  # named first when the two are as wide
+        if design.rim == "channel":
+            features.insert(0, (f"rim channel {RIM_WIDTH_FRACTION:g} w", RIM_WIDTH_FRACTION * design.width_mm))
     return min(features, key=lambda f: f[1])
 
 
