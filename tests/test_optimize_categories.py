@@ -82,6 +82,15 @@ def test_cli_ranks_the_combinations(tmp_path):
         assert float(r["v_rel_median"]) == pytest.approx(float(r["score"]), rel=1e-12)
         assert float(r["v_rel_max_share"]) == pytest.approx(0.5, rel=1e-12)
     assert "median press" in done.stdout
+    # the optimum's layout measured on its footprint: the square lattice's channel w and island p - w, its
+    # rim channel w / 2; the honeycomb at w = 2.5 leaves a silicone sliver where the sensor's edge clips a cell
+    square = {r["rim"]: r for r in rows if r["pattern"] == "square"}
+    assert float(square["none"]["narrowest_gel_mm"]) == pytest.approx(4.0, abs=1e-6)
+    assert float(square["none"]["narrowest_silicone_mm"]) == pytest.approx(12.5 - 4.0, abs=1e-2)
+    assert float(square["channel"]["narrowest_gel_mm"]) == pytest.approx(3.0 / 2, abs=1e-6)
+    hex_report = (tmp_path / "out" / "pattern-hexagonal_rim-none" / "families_report.txt").read_text()
+    assert "BELOW the fabrication limits" in hex_report and "< min_island_mm = 1" in hex_report
+    assert "BELOW" not in (tmp_path / "out" / "pattern-square_rim-none" / "families_report.txt").read_text()
     assert f"wrote figure: {tmp_path / 'out' / 'categories.png'}" in done.stdout  # every path on one axis
     assert (tmp_path / "out" / "categories.png").stat().st_size > 10_000
 

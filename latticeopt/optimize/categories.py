@@ -28,7 +28,7 @@ from ..errors import ParameterError
 from ..study.keynames import KeyNames
 from .load import optimization_from_dict
 from .problem import Optimization
-from .report import press_spread
+from .report import optimum_features, press_spread
 
 __all__ = ["CATEGORICAL_FIELDS", "CategoryRun", "categorical_optimizations", "plot_categories", "run_categories",
            "write_summary"]
@@ -109,8 +109,10 @@ def write_summary(pairs: Sequence[tuple], path: Path) -> list[str]:
         row = {"category": c.label, **dict(c.values), "evaluations": len(res.history)}
         if best is not None:
             median, _, share = press_spread(best.assessment)
+            layout = optimum_features(res)
             row.update({"score": best.score, "se": best.se, "v_rel_median": median, "v_rel_max_share": share,
-                        **{k: val for k, val in best.x.items()}})
+                        **{k: val for k, val in best.x.items()}, "narrowest_gel_mm": layout.gel_mm,
+                        "narrowest_silicone_mm": layout.silicone_mm})
         rows.append(row)
     path.parent.mkdir(parents=True, exist_ok=True)
     fields = list(dict.fromkeys(k for r in rows for k in r))
@@ -120,10 +122,12 @@ def write_summary(pairs: Sequence[tuple], path: Path) -> list[str]:
         w.writerows(rows)
     ranked = sorted((r for r in rows if "score" in r), key=lambda r: -r["score"])
     lines = [f"categories ranked by their optimum ({path}):"]
+    names = {k for c, res in pairs if res.best is not None for k in res.best.x}
     for r in ranked:
-        x = ", ".join(f"{k.removesuffix('_mm')} = {r[k]:.3f}" for k in r if k.endswith("_mm"))
+        x = ", ".join(f"{k.removesuffix('_mm')} = {r[k]:.3f}" for k in r if k in names)
         lines.append(f"  {r['category']}: score {r['score']:.5g} ± {r['se']:.2g} at {x} ({r['evaluations']} calls; "
-                     f"median press {r['v_rel_median']:.4g}, the strongest {r['v_rel_max_share']:.0%} of the sum)")
+                     f"median press {r['v_rel_median']:.4g}, the strongest {r['v_rel_max_share']:.0%} of the sum; "
+                     f"narrowest gel {r['narrowest_gel_mm']:.3g} mm, silicone {r['narrowest_silicone_mm']:.3g} mm)")
     lines += [f"  {r['category']}: no feasible design" for r in rows if "score" not in r]
     return lines
 

@@ -1,0 +1,94 @@
+"""What a mould has to make: the narrowest hydrogel and silicone features of a layout, measured on its footprint.
+
+A lattice's channel width ``w`` and island width ``p - w`` hold in the sensor's interior. Where the sensor's
+edge clips the pattern they need not: a honeycomb cell whose side runs a fraction of a millimetre inside the
+edge leaves a gel strip that thin between it and the wall, a clipped island corner leaves a silicone sliver.
+This module measures both on the laid-out footprint (shapely), for any layout:
+
+* the narrowest **gel** feature is the smallest gap between two silicone bodies that do not touch, the four
+  walls of the sensor counting as bodies (so a gel strip between an island and the wall is a channel);
+* the narrowest **silicone** feature is the smallest island's largest inscribed circle (diameter).
+
+Example
+-------
+>>> from latticeopt import LatticeDesign
+>>> from latticeopt.fabrication import narrowest_features
+>>> f = narrowest_features(LatticeDesign(width_mm=4).footprint(), 100.0)
+>>> round(f.gel_mm, 6), round(f.silicone_mm, 3)    # the square lattice: w and p - w
+(4.0, 8.5)
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+__all__ = ["Features", "narrowest_features"]
+
+
+@dataclass(frozen=True)
+class Features:
+    """The narrowest gel and silicone features of a layout (mm) and where they are (``(x, y)`` in mm, or
+    ``None`` when the layout has no such feature: ``inf`` then)."""
+
+    gel_mm: float
+    gel_at: tuple[float, float] | None
+    silicone_mm: float
+    silicone_at: tuple[float, float] | None
+
+    def below(self, min_channel_mm: float, min_island_mm: float) -> list[str]:
+        """One phrase per limit the layout breaks, naming the feature, its width and place; empty if none."""
+        out = []
+        for what, width, at, key, limit in (("gel", self.gel_mm, self.gel_at, "min_channel_mm", min_channel_mm),
+                                            ("silicone", self.silicone_mm, self.silicone_at, "min_island_mm",
+                                             min_island_mm)):
+            if width < limit:
+                out.append(f"{what} {width:.3g} mm wide at ({at[0]:.4g}, {at[1]:.4g}) mm < {key} = {limit:g}")
+        return out
+
+
+def narrowest_features(footprint, size_mm: float, tolerance_mm: float = 1e-3) -> Features:
+    """The narrowest gel and silicone features of the hydrogel ``footprint`` in the ``size_mm`` square.
+
+    Parameters
+    ----------
+    footprint : shapely geometry
+        The hydrogel polygons (mm), as :meth:`LatticeDesign.footprint` gives them.
+    size_mm : float
+        The sensor's side ``L``; the walls are the square's four sides.
+    tolerance_mm : float
+        Accuracy of the inscribed circles; bodies closer than ``1e-9 L`` count as touching (no gel between).
+
+    Returns
+    -------
+    Features
+    """
+    import shapely
+    from shapely.ops import nearest_points
+
+    L = float(size_mm)
+    square = shapely.box(0.0, 0.0, L, L)
+    silicone = square.difference(footprint)
+    islands = [g for g in getattr(silicone, "geoms", [silicone]) if g.area > 1e-12 * L * L]
+    walls = [shapely.box(-1.0, 0.0, 0.0, L), shapely.box(L, 0.0, L + 1.0, L), shapely.box(0.0, -1.0, L, 0.0),
+             shapely.box(0.0, L, L, L + 1.0)]
+    bodies = islands + walls
+    gel, gel_at = math.inf, None
+    tree = shapely.STRtree(bodies)
+    for i, body in enumerate(bodies):
+        # only bodies closer than the best gap so far can set a new one
+        reach = gel if math.isfinite(gel) else L
+        for j in tree.query(body, predicate="dwithin", distance=reach):
+            if j <= i or (i >= len(islands) and j >= len(islands)):
+                continue  # each pair once; two walls have no gel between them
+            gap = body.distance(bodies[j])
+            if 1e-9 * L < gap < gel:
+                a, b = nearest_points(body, bodies[j])
+                gel, gel_at = gap, ((a.x + b.x) / 2, (a.y + b.y) / 2)
+    sil, sil_at = math.inf, None
+    for island in islands:
+        radius = shapely.maximum_inscribed_circle(island, tolerance_mm)
+        if 2 * radius.length < sil:
+            c = radius.coords[0]
+            sil, sil_at = 2 * radius.length, (c[0], c[1])
+    return Features(gel, gel_at, sil, sil_at)
