@@ -36,11 +36,13 @@ class Features:
     silicone_mm: float
     silicone_at: tuple[float, float] | None
 
-    def below(self, min_channel_mm: float, min_island_mm: float) -> list[str]:
-        """One phrase per limit the layout breaks, naming the feature, its width and place; empty if none."""
+    def below(self, min_channel_mm: float, min_island_mm: float,
+              keys: tuple[str, str] = ("min_channel_mm", "min_island_mm")) -> list[str]:
+        """One phrase per limit the layout breaks, naming the feature, its width and place, and the limit's
+        key (``keys``: the gel's, the silicone's); empty if none."""
         out = []
-        for what, width, at, key, limit in (("gel", self.gel_mm, self.gel_at, "min_channel_mm", min_channel_mm),
-                                            ("silicone", self.silicone_mm, self.silicone_at, "min_island_mm",
+        for what, width, at, key, limit in (("gel", self.gel_mm, self.gel_at, keys[0], min_channel_mm),
+                                            ("silicone", self.silicone_mm, self.silicone_at, keys[1],
                                              min_island_mm)):
             if width < limit:
                 out.append(f"{what} {width:.3g} mm wide at ({at[0]:.4g}, {at[1]:.4g}) mm < {key} = {limit:g}")

@@ -68,3 +68,13 @@ def test_edge_strips_agree_with_a_wall_by_wall_measurement(pattern, w):
     assert f.gel_mm == pytest.approx(min(to_walls, between), abs=1e-9)
     assert f.silicone_mm == pytest.approx(thinnest, abs=2e-3)
     assert min(f.gel_mm, f.silicone_mm) < 1.0  # each of these lattices has a sub-millimetre edge feature
+
+
+def test_a_density_study_report_warns_of_features_below_its_mould_naming_the_key():
+    from latticeopt.optimize.layout_outputs import mould_lines
+
+    geom = _gel_around((10, 10, 30, 30), (30.5, 10, 50, 30))  # gel 0.5 mm between two islands
+    lines = mould_lines(geom, L, (("graded.min_width_mm", 1.0), ("graded.min_island_mm", 2.0)))
+    assert lines[0] == "what the mould must make: narrowest gel 0.5 mm, narrowest silicone 19.5 mm"
+    assert len(lines) == 2 and "gel 0.5 mm wide" in lines[1] and "< graded.min_width_mm = 1" in lines[1]
+    assert mould_lines(geom, L, (("freeform.min_feature_mm", 0.4), ("freeform.min_feature_mm", 0.4)))[1:] == []

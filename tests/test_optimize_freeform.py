@@ -237,6 +237,9 @@ def test_graded_study_writes_an_exact_layout(tmp_path, monkeypatch, capsys):
     widths = json.loads((out / "widths.json").read_text())
     assert len(widths["widths_along_x_mm"]) == 7 and widths["widths_along_x_mm"] == widths["widths_along_y_mm"]
     assert all(1.0 <= w <= 10.5 for w in widths["variables_mm"])
+    # the outline's narrowest gel, measured on it, is the narrowest line the optimizer chose
+    report = (out / "report.txt").read_text()
+    assert f"narrowest gel {min(widths['variables_mm']):.3g} mm" in report
     capsys.readouterr()
     assert main(["mesh", "--layout", str(out / "layout.geojson"), "--mesher", "grid", "--thickness", "3",
                  "--size", "8", "--json"]) == 0  # axis-aligned: the exact grid mesher takes it

@@ -122,6 +122,11 @@ class FreeformConfig(DensityStudyConfig):
         set_(self, "isolation_threshold", v.real("freeform.isolation_threshold", self.isolation_threshold,
                                                  lo=0.05, hi=0.95))
 
+    @property
+    def mould_limits_mm(self) -> tuple[tuple[str, float], tuple[str, float]]:
+        """The narrowest gel and silicone the study means to cast, with their keys (the filter's radius)."""
+        return ("freeform.min_feature_mm", self.min_feature_mm), ("freeform.min_feature_mm", self.min_feature_mm)
+
     def isolation_sharpness(self, beta: float) -> float:
         # the stage's grey cells conduct in the model but are cut at the threshold when the layout is cast: read
         # the bound on a sharper projection, so that a grey bridge does not count as a join; raised with the stage,

@@ -53,6 +53,11 @@ class GradedConfig(DensityStudyConfig):
     def iterations_per_beta(self) -> int:
         return self.iterations
 
+    @property
+    def mould_limits_mm(self) -> tuple[tuple[str, float], tuple[str, float]]:
+        """The narrowest gel and silicone the study means to cast, with their keys."""
+        return ("graded.min_width_mm", self.min_width_mm), ("graded.min_island_mm", self.min_island_mm)
+
     def _check(self, set_) -> None:
         set_(self, "min_width_mm", v.real("graded.min_width_mm", self.min_width_mm, lo=0.05, hi=50.0))
         set_(self, "min_island_mm", v.real("graded.min_island_mm", self.min_island_mm, lo=0.0, hi=50.0))

@@ -21,6 +21,21 @@ def shapely_parts(geom) -> list:
 
 
 
+def mould_lines(geom, size_mm: float, limits) -> list[str]:
+    """What a mould must make for the outline ``geom``: its narrowest gel and silicone (measured on it,
+    :mod:`latticeopt.fabrication`), and a warning per limit of ``limits`` (``((key, mm), (key, mm))``: gel,
+    silicone) it breaks, which the density's filter or the widths' bounds do not rule out where pieces meet."""
+    from ..fabrication import narrowest_features
+
+    f = narrowest_features(geom, size_mm)
+    (gel_key, gel_mm), (sil_key, sil_mm) = limits
+    lines = [f"what the mould must make: narrowest gel {f.gel_mm:.3g} mm, narrowest silicone {f.silicone_mm:.3g} mm"]
+    for phrase in f.below(gel_mm, sil_mm, (gel_key, sil_key)):
+        lines.append(f"WARNING: the outline has {phrase} (fill or trim it before casting)")
+        log.warning("the outline has %s", phrase)
+    return lines
+
+
 def write_outputs(design, rho: np.ndarray, cfg, out: Path, history: list, geometry=None,
                   extra_lines: tuple = ()) -> dict:
     """Density, outline (GeoJSON; DXF when ezdxf is installed), region solids (STL), convergence plot, report.
@@ -90,6 +105,8 @@ def write_outputs(design, rho: np.ndarray, cfg, out: Path, history: list, geomet
     lines.append(f"{outline}: gel fraction "
                  f"{report['hydrogel_fraction']:.4f}, {report['pieces']} pieces, {report['pieces_dropped']} "
                  f"dropped (no electrode), {report['dropped_area_mm2']:.1f} mm^2 dropped")
+    if not geom.is_empty:
+        lines += mould_lines(geom, design.size_mm, cfg.mould_limits_mm)
     if report["pieces"] > 1:
         # separate pieces conduct to each other only through the density model's insulating floor: the model then
         # reads large relative changes on rows across pieces that a cast sensor could not measure at all
