@@ -30,7 +30,7 @@ for _var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
 import numpy as np  # noqa: E402
 
 from latticeopt import LatticeDesign, MeshSettings  # noqa: E402
-from latticeopt.cli._common import add_physics_arg, physics_settings, physics_values  # noqa: E402
+from latticeopt.cli._physics import add_physics_arg, physics_settings, physics_values  # noqa: E402
 from latticeopt.coupled import CoupledModel  # noqa: E402
 from latticeopt.errors import ParameterError  # noqa: E402
 from latticeopt.study.phantoms import Phantom, random_phantom  # noqa: E402

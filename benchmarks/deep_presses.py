@@ -22,7 +22,7 @@ for _var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 from latticeopt import LatticeDesign, MeshSettings  # noqa: E402
-from latticeopt.cli._common import add_physics_arg, physics_settings  # noqa: E402
+from latticeopt.cli._physics import add_physics_arg, physics_settings  # noqa: E402
 from latticeopt.coupled import CoupledModel  # noqa: E402
 from latticeopt.errors import ConvergenceError  # noqa: E402
 from latticeopt.study.config import load_study  # noqa: E402

@@ -26,8 +26,7 @@ for _var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
 import numpy as np  # noqa: E402
 
 from latticeopt import LatticeDesign, MeshSettings  # noqa: E402
-from latticeopt.cli._common import add_physics_arg, physics_from_args  # noqa: E402
-from latticeopt.coupled import PhysicsSettings  # noqa: E402
+from latticeopt.cli._physics import add_physics_arg, physics_settings  # noqa: E402
 from latticeopt.errors import ConvergenceError  # noqa: E402
 from latticeopt.mechanics import IndentationSolver  # noqa: E402
 from latticeopt.mesh import mesh_design  # noqa: E402
@@ -55,7 +54,7 @@ def main(argv=None) -> None:
         touches = [tuple(float(x) for x in t.split(",")) for t in args.touch]
     if not touches:
         ap.error("--touch or --phantom: expected a touch, got none")
-    physics = PhysicsSettings.from_dict(physics_from_args(args))
+    physics = physics_settings(args)
     w, t = (float(x) for x in args.design.split(":"))
     t0 = time.perf_counter()
     mesh = mesh_design(LatticeDesign(width_mm=w, thickness_mm=t, pitch_mm=12.5), MESHES[args.mesh])

@@ -274,6 +274,28 @@ def test_a_press_that_fails_twice_at_its_depth_still_converges(stack_mesh, stack
     assert res.forces_N[0] == pytest.approx(ref.forces_N[0], rel=1e-4)
 
 
+def test_a_stalling_gmres_increment_is_replaced_by_a_fresh_factorization(stack_mesh, stack_solver):
+    """GMRES increments that barely lower the residual (here cut to a twentieth, as the shifted system of an
+    older factorization does on deep presses) are followed by an exact Newton step: the press converges to the
+    state of the press without the stall. Before, the stalled iterates ran into max_newton at every attempt."""
+    solver = IndentationSolver(stack_mesh, IndentSettings(max_step_mm=1.0))
+    krylov, stalled = solver._krylov_solve, []
+
+    def stalling(ev, isD, D, jump, R, rtol, atol):
+        du = krylov(ev, isD, D, jump, R, rtol, atol)
+        if du is not None and not np.any(jump):
+            stalled.append(1)
+            du = 0.05 * du
+        return du
+
+    solver._krylov_solve = stalling
+    res = solver.solve([(25, 25, 7.5, 1.5)])
+    ref = stack_solver.solve([(25, 25, 7.5, 1.5)])
+    assert stalled and res.step_halvings == 0
+    assert res.forces_N[0] == pytest.approx(ref.forces_N[0], rel=1e-4)
+    assert max(len(n) for n in res.residual_norms) < 40  # far below max_newton
+
+
 def test_settings_are_validated():
     with pytest.raises(ParameterError, match="indenter"):
         IndentSettings(indenter="cone")

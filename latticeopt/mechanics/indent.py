@@ -65,6 +65,14 @@ STALL_HALVINGS = 4
 # attempts of 40 iterations for a 9 mm stack pressed to 8.9 mm on the paper mesh. The deep paper presses that
 # converge failed at most twice at their final depth (1:95 on w = 2, t = 1; docs/verification.md)
 TARGET_FAILURES = 3
+# A GMRES increment through the last factorization solves the current tangent, but where that tangent is
+# indefinite it falls back to the shifted system of the factorization, whose shift belongs to an older state: a
+# descent direction that can stall. Seen on deep presses: the residual flat at 2x the tolerance for 30 iterations,
+# three attempts in a row, where exact Newton converged (docs/verification.md). So after this many GMRES
+# iterates in a row that did not lower the residual below ``_STALL_RATIO`` of the previous one, the next
+# iteration refactorizes. A press whose GMRES iterates keep converging follows exactly the path it did before.
+_STALL_ITERATES = 2
+_STALL_RATIO = 0.9
 
 
 class IndentationSolver(TangentSolves):
@@ -254,6 +262,7 @@ class IndentationSolver(TangentSolves):
         first = 0  # start of the iterates the divergence test compares
         refactor_next = False
         krylov = s.method == "newton-krylov"
+        stalled = 0  # GMRES iterates in a row that did not lower the residual to _STALL_RATIO of the one before
         for it in range(s.max_newton + 1):
             D, vals = cons.dirichlet(lam)
             isD = np.zeros(n, dtype=bool)
@@ -290,6 +299,7 @@ class IndentationSolver(TangentSolves):
                 du = self._krylov_solve(ev, isD, D, jump, R, _JUMP_RTOL if np.any(jump) else s.krylov_rtol,
                                         0.5 * tol)
                 exact = du is None  # the factorization is too stale: refactorize instead
+            gmres_step = krylov and not exact and not np.any(jump)  # a load increment raises the residual
             if exact:
                 if ev.data is None:
                     ev = self._evaluate(u, tangent=True)
@@ -311,6 +321,12 @@ class IndentationSolver(TangentSolves):
                     raise
                 refactor_next = True  # an increment through a stale factorization failed: retry with a fresh one
                 continue
+            if gmres_step and float(np.linalg.norm(ev_new.residual_N[~isD])) > _STALL_RATIO * r_free:
+                stalled += 1
+                if stalled >= _STALL_ITERATES:
+                    refactor_next, stalled = True, 0
+            else:
+                stalled = 0
             u, ev = u_new, ev_new
         raise AssertionError("unreachable")  # pragma: no cover
 
