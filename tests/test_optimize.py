@@ -407,6 +407,27 @@ def test_a_failed_phantom_makes_a_design_infeasible(tmp_path, monkeypatch):
     assert math.isnan(Objective().evaluate([0.05, math.nan, 0.04]).score)
 
 
+def test_retry_failed_recomputes_the_stored_failures_once_the_model_solves_them(tmp_path, monkeypatch):
+    opt = load_optimization(_write(tmp_path))
+    monkeypatch.setenv(FAIL_ENV, min(opt.study.phantoms, key=_phantom_factor).key)
+    first = run_optimization(opt, failing_evaluate, outputs=False)
+    assert first.best.x["width_mm"] <= W_FAIL
+    monkeypatch.setenv(FAIL_ENV, "none")  # the solver is mended: no phantom fails any more
+    again = run_optimization(opt, failing_evaluate, outputs=False)  # the failures are read from the store
+    assert again.best.x == first.best.x and any(s.assessment.n_failed for s in again.history if s.assessment)
+    retried = run_optimization(opt, failing_evaluate, outputs=False, retry_failed=True)
+    assert not any(s.assessment.n_failed for s in retried.history if s.assessment)
+    assert retried.best.x["width_mm"] > W_FAIL and retried.best.x["width_mm"] == pytest.approx(W_OPT, abs=0.05)
+
+
+def test_retry_failed_is_refused_for_a_density_study(capsys):
+    from latticeopt.cli import main
+
+    assert main(["optimize", str(TESTS.parent / "studies" / "optimize_freeform.toml"), "--retry-failed"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--retry-failed" in err and "a density study" in err
+
+
 def test_every_evaluation_failed_is_an_error(tmp_path, monkeypatch):
     monkeypatch.setenv(FAIL_ENV, "*")
     path = _write(tmp_path, max_evals=4)

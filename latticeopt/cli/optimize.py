@@ -40,6 +40,8 @@ def register(sub) -> None:
                    help="model evaluating one phantom (same as --set model=...)")
     p.add_argument("--dry-run", action="store_true",
                    help="validate, print the effective problem and what the store holds, and stop")
+    p.add_argument("--retry-failed", action="store_true",
+                   help="compute phantoms stored as failed again (parametric studies; e.g. after a solver change)")
     p.add_argument("--quiet", "-q", action="store_true", help="no line per evaluation")
     p.set_defaults(func=run_optimize_command)
 
@@ -68,6 +70,11 @@ def run_optimize_command(args: argparse.Namespace) -> int:
 
     raw, keys = read_study_table(args.study, study_overrides(args), physics_values(args))
     if is_density_study(raw):
+        if args.retry_failed:
+            from ..errors import ParameterError
+
+            raise ParameterError("--retry-failed", "a parametric study ([optimize]): free-form and graded studies "
+                                 "keep no store of phantoms to retry", "a density study")
         return _run_density_study(args, raw, keys)
     runs = categorical_optimizations(raw, source=str(args.study), overridden=keys, default_name=Path(args.study).stem)
     check_parallel_args(args)
@@ -94,7 +101,7 @@ def run_optimize_command(args: argparse.Namespace) -> int:
             print(f"== category {run.label} ==", flush=True)
         try:
             result = run_optimization(run.optimization, jobs=args.jobs, backend=args.backend,
-                                      scheduler=args.scheduler, callback=callback)
+                                      scheduler=args.scheduler, callback=callback, retry_failed=args.retry_failed)
         except AllFailedError as exc:
             if len(runs) == 1:
                 raise

@@ -48,7 +48,7 @@ def _image_figures(design: LatticeDesign, evs, probes: Sequence[Phantom], object
 def assess_design(design: LatticeDesign, *, phantoms: Sequence[Phantom], probes: Sequence[Phantom],
                   objective: Objective, settings: EvalSettings, out_dir: str | Path, evaluate: Callable,
                   need_stretch: bool = False, jobs: int = 1, backend: str = "local", scheduler=None,
-                  images: ReconstructorCache | None = None) -> Assessment:
+                  images: ReconstructorCache | None = None, retry_failed: bool = False) -> Assessment:
     """Evaluate ``design`` on every phantom (and probe) through the store and score it.
 
     Phantoms already stored under ``settings.key`` are read, the rest computed (``jobs`` in parallel) and
@@ -56,14 +56,16 @@ def assess_design(design: LatticeDesign, *, phantoms: Sequence[Phantom], probes:
     (the design is infeasible, :mod:`latticeopt.study.objectives`); ``n_failed`` counts them, and ``v_rel_mean`` /
     ``max_stretch`` describe the successful ones only (for the history, never for ranking). With ``image_cc``
     the probes' stored voltages are reconstructed with the design's Jacobian from ``images`` (a per-run cache;
-    ``None`` builds it afresh), :mod:`latticeopt.study.imaging`.
+    ``None`` builds it afresh), :mod:`latticeopt.study.imaging`. ``retry_failed`` computes phantoms stored as
+    failed again (after a solver change) instead of reading the failure.
     """
     from ..study.engine import evaluate_designs
     from ..study.report import smallest_reference
 
     t0 = time.perf_counter()
     evs, computed = evaluate_designs([design], list(phantoms) + list(probes), settings, out_dir, evaluate,
-                                     jobs=jobs, backend=backend, scheduler=scheduler, label=design.describe())
+                                     jobs=jobs, backend=backend, scheduler=scheduler, label=design.describe(),
+                                     retry_failed=retry_failed)
     n = len(phantoms)
     vals = [e.v_rel if e.ok else math.nan for e in evs]
     rnd, prb = np.asarray(vals[:n]), np.asarray(vals[n:])
@@ -139,7 +141,8 @@ def _dask_client(scheduler, jobs: int):
 
 def run_optimization(opt: Optimization, evaluate: Callable | None = None, *, jobs: int | None = None,
                      backend: str = "local", scheduler=None, out_dir: str | Path | None = None,
-                     outputs: bool = True, callback: Callable[[Step], None] | None = None) -> OptimizationResult:
+                     outputs: bool = True, callback: Callable[[Step], None] | None = None,
+                     retry_failed: bool = False) -> OptimizationResult:
     """Run an optimization study through the results store and write its outputs.
 
     Parameters
@@ -157,6 +160,9 @@ def run_optimization(opt: Optimization, evaluate: Callable | None = None, *, job
         Write the history CSV, plots and report (:mod:`latticeopt.optimize.report`).
     callback
         Called with every :class:`Step`.
+    retry_failed
+        Compute the phantoms stored as failed again (each design once per run: a repeated point is not assessed
+        twice), as ``latticeopt sweep --retry-failed`` does; the path then follows the new results.
     """
     from ..study.engine import resolve_model
 
@@ -178,7 +184,7 @@ def run_optimization(opt: Optimization, evaluate: Callable | None = None, *, job
             assess_design, phantoms=study.phantoms, probes=opt.probes, objective=opt.config.objective,
             settings=settings, out_dir=out, evaluate=evaluate,
             need_stretch=opt.config.constraints.max_hydrogel_stretch is not None, jobs=jobs, backend=backend,
-            scheduler=scheduler, images=ReconstructorCache())
+            scheduler=scheduler, images=ReconstructorCache(), retry_failed=retry_failed)
         optimum = minimize(opt.problem, opt.config, assess, callback=callback)
     paired = None
     if optimum.best is not None and optimum.start_step is not None and optimum.start_step.assessment is not None:
