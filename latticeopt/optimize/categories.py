@@ -28,7 +28,7 @@ from ..errors import ParameterError
 from ..study.keynames import KeyNames
 from .load import optimization_from_dict
 from .problem import Optimization
-from .report import optimum_features, press_spread
+from .report import press_spread
 
 __all__ = ["CATEGORICAL_FIELDS", "CategoryRun", "categorical_optimizations", "plot_categories", "run_categories",
            "write_summary"]
@@ -109,7 +109,7 @@ def write_summary(pairs: Sequence[tuple], path: Path) -> list[str]:
         row = {"category": c.label, **dict(c.values), "evaluations": len(res.history)}
         if best is not None:
             median, _, share = press_spread(best.assessment)
-            layout = optimum_features(res)
+            layout = res.optimum_layout
             row.update({"score": best.score, "se": best.se, "v_rel_median": median, "v_rel_max_share": share,
                         **{k: val for k, val in best.x.items()}, "narrowest_gel_mm": layout.gel_mm,
                         "narrowest_silicone_mm": layout.silicone_mm})

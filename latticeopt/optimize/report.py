@@ -17,13 +17,12 @@ from pathlib import Path
 import numpy as np
 
 from .._jsonout import jsonable
-from ..fabrication import narrowest_features
 from ..study.imaging import FIGURES
 from ..study.report import floor_text, round_off_lines, write_csv
 from ..study.store import STORE_NAME, ResultStore
 from .problem import effective_bounds_text
 
-__all__ = ["features_text", "history_rows", "optimum_features", "plot_convergence", "plot_path", "stored_map",
+__all__ = ["features_text", "history_rows", "plot_convergence", "plot_path", "stored_map",
            "write_optimization_outputs"]
 
 
@@ -201,16 +200,6 @@ def _fmt_x(x: dict) -> str:
     return ", ".join(f"{_label(k).replace(' (mm)', '')} = {val:.4g} mm" for k, val in x.items())
 
 
-def optimum_features(result):
-    """The narrowest gel and silicone features of the optimum's layout (:mod:`latticeopt.fabrication`), or ``None``
-    without a feasible optimum."""
-    if result.best is None:
-        return None
-    problem = result.optimization.problem
-    design = problem.design(np.array([result.best.x[n] for n in problem.names]))
-    return narrowest_features(design.footprint(), design.size_mm)
-
-
 def features_text(features, constraints) -> str:
     """One line on what a mould has to make for the optimum, and which fabrication limit its edges break."""
     text = (f"layout of the optimum: narrowest gel {features.gel_mm:.3g} mm, narrowest silicone "
@@ -275,7 +264,7 @@ def report_lines(result) -> list[str]:
         active = [k for k, g in result.best.constraints.items() if g > -1e-3]
         if active:
             lines.append("constraints active at the optimum: " + ", ".join(active))
-        lines.append(features_text(optimum_features(result), opt.config.constraints))
+        lines.append(features_text(result.optimum_layout, opt.config.constraints))
     lines += round_off_lines([(_fmt_x(s.x), s.assessment.min_reference_rel) for s in fresh],
                              opt.study.settings.physics_settings.measurement_floor_rel)
     for st in result.optimum.starts:
@@ -313,7 +302,7 @@ def write_optimization_outputs(result) -> tuple[dict, list[str]]:
                                                      "terms": best.assessment.terms,
                                                      "image_figures": best.assessment.image_figures,
                                                      "call": best.index, "design_key": best.assessment.design_key},
-               "optimum_layout": None if best is None else dataclasses.asdict(optimum_features(result)),
+               "optimum_layout": None if best is None else dataclasses.asdict(result.optimum_layout),
                "improvement_over_start": None if result.paired is None else dict(zip(("diff", "se"), result.paired)),
                "starts": [{"x0": s.x0, "result": s.result, "calls": s.evaluations, "message": s.message}
                           for s in result.optimum.starts],

@@ -14,6 +14,7 @@ import numpy as np
 
 from ..design import LatticeDesign
 from ..errors import AllFailedError, LatticeoptError, ParameterError
+from ..fabrication import Features, narrowest_features
 from ..study.imaging import FIGURES, ReconstructorCache, probe_image_figures, probe_presses
 from ..study.phantoms import Phantom
 from ..study.report import mean_se
@@ -113,6 +114,16 @@ class OptimizationResult:
     def computed(self) -> int:
         """Phantoms computed by this run (the rest were read from the store)."""
         return sum(s.assessment.computed for s in self.history if s.assessment is not None and not s.repeat)
+
+    @functools.cached_property
+    def optimum_layout(self) -> Features | None:
+        """The narrowest gel and silicone of the optimum's layout, measured on its footprint
+        (:mod:`latticeopt.fabrication`); ``None`` without a feasible optimum."""
+        if self.best is None:
+            return None
+        problem = self.optimization.problem
+        design = problem.design(np.array([self.best.x[n] for n in problem.names]))
+        return narrowest_features(design.footprint(), design.size_mm)
 
 
 @contextlib.contextmanager
