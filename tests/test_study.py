@@ -109,6 +109,13 @@ def test_unknown_key_named_with_valid_keys(tmp_path, edit, key, fragment):
     (("seed = 1", "seed = 1\nradius_mm = [8, 6]"), "phantoms.radius_mm"),
     (("seed = 1", "seed = 1\ndepth_mm = [9.2, 9.5]"), "phantoms.depth_mm"),     # deeper than the stack (by range)
     (("[phantoms]", "[press]\nx_mm = 50\n[phantoms]"), "press"),                # press table in a grid study
+    (("counts = { 1 = 2, 2 = 1 }", 'only = ["1:3", "1:3"]'), "phantoms.only"),    # listed twice
+    (("counts = { 1 = 2, 2 = 1 }", 'only = ["6:0"]'), "phantoms.only"),           # more touches than allowed
+    (("counts = { 1 = 2, 2 = 1 }", 'only = "1:3"'), "phantoms.only"),             # not a list
+    (("counts = { 1 = 2, 2 = 1 }", 'only = ["1/3"]'), "phantoms.only"),
+    (("counts = { 1 = 2, 2 = 1 }", 'only = []'), "phantoms.only"),
+    (("seed = 1", 'seed = 1\nonly = ["1:3"]'), "phantoms.counts"),               # both pick the phantoms
+    (("counts = { 1 = 2, 2 = 1 }", 'only = ["1:3"]\ntarget_se = 0.01'), "phantoms.target_se"),
 ])
 def test_invalid_study_rejected_naming_file_and_key(tmp_path, edit, key):
     assert edit[0] in BASE
@@ -116,6 +123,19 @@ def test_invalid_study_rejected_naming_file_and_key(tmp_path, edit, key):
     with pytest.raises(ParameterError) as info:
         load_study(path)
     assert str(info.value).startswith(f"{path}: {key}:"), str(info.value)
+
+
+def test_only_picks_the_phantoms_a_larger_study_draws(tmp_path):
+    """``phantoms.only`` re-runs single phantoms of a study: the same touches as the full study's (its streams
+    are per phantom), in the order listed, with their indices; counts are the selection's."""
+    full = load_study(_write(tmp_path, BASE.replace("counts = { 1 = 2, 2 = 1 }", "counts = { 1 = 8, 2 = 5 }")))
+    picked = load_study(_write(tmp_path, BASE.replace("counts = { 1 = 2, 2 = 1 }", 'only = ["2:4", "1:7"]')))
+    by_key = {(p.n_touches, p.index): p for p in full.phantoms}
+    assert [(p.n_touches, p.index) for p in picked.phantoms] == [(2, 4), (1, 7)]
+    assert [p.touches for p in picked.phantoms] == [by_key[2, 4].touches, by_key[1, 7].touches]
+    assert dict(picked.phantom_set.counts) == {1: 1, 2: 1}
+    with pytest.raises(ParameterError, match="phantoms.only"):
+        load_study(_write(tmp_path, ML.replace("counts = { 1 = 2, 2 = 2 }", 'only = ["1:0", "1:1", "2:0", "2:1"]')))
 
 
 def test_bad_toml_and_missing_file(tmp_path):

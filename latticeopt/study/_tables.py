@@ -35,7 +35,7 @@ _TOP = {"name": "study name (default: file stem)", "description": "free text",
         "physics": "table of model settings",
         "multilevel": "table: coarse mesh, pilot, se_factor, control (kind = 'grid')"}
 _ADAPTIVE_KEYS = tuple(f.name for f in dataclasses.fields(AdaptiveSettings))
-_PHANTOM_KEYS = ("seed", "counts", "depth_mm", "radius_mm", "min_gap_mm", *_ADAPTIVE_KEYS)
+_PHANTOM_KEYS = ("seed", "counts", "only", "depth_mm", "radius_mm", "min_gap_mm", *_ADAPTIVE_KEYS)
 _PRESS_KEYS = ("x_mm", "y_mm", "radius_mm", "depths_mm", "compare")
 _COMPARE_KEYS = ("label", "numerator", "denominator", "reference")
 _PROBE_KEYS = tuple(f.name for f in dataclasses.fields(ProbePresses))
@@ -67,13 +67,41 @@ def _number_pair(where: _Where, key: str, val: object, lo: float) -> tuple[float
     return float(val[0]), float(val[1])
 
 
+_ONLY = (f"a non-empty list of distinct 'touches:index' strings, e.g. [\"1:13\", \"2:9\"] (touches 1..{MAX_TOUCHES}, "
+         "index >= 0: phantom index of that touch count)")
+
+
+def _only(where: _Where, tab: dict) -> tuple[tuple[int, int], ...]:
+    """``phantoms.only``: single phantoms of the seed's streams, ``"K:I"`` = phantom ``I`` with ``K`` touches."""
+    val = tab["only"]
+    for key in ("counts", *_ADAPTIVE_KEYS):
+        if key in tab:
+            raise where.error(f"phantoms.{key}", f"no phantoms.{key} beside phantoms.only (only picks the "
+                              "phantoms itself)", tab[key])
+    if not isinstance(val, list) or not val:
+        raise where.error("phantoms.only", _ONLY, val)
+    picked = []
+    for item in val:
+        parts = item.split(":") if isinstance(item, str) else []
+        ok = len(parts) == 2 and all(p.strip().isdigit() for p in parts)
+        if not ok or not 1 <= int(parts[0]) <= MAX_TOUCHES:
+            raise where.error("phantoms.only", _ONLY, val)
+        picked.append((int(parts[0]), int(parts[1])))
+    if len(set(picked)) != len(picked):
+        raise where.error("phantoms.only", _ONLY + "; a phantom is listed twice", val)
+    return tuple(picked)
+
+
 def _random_phantoms(where: _Where, tab: dict) -> RandomPhantoms:
     _known(where, tab, _PHANTOM_KEYS, "phantoms")
     d = RandomPhantoms()
     seed = tab.get("seed", d.seed)
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise where.error("phantoms.seed", "an integer >= 0", seed)
+    only = _only(where, tab) if "only" in tab else ()
     counts_raw = tab.get("counts", {str(k): n for k, n in d.counts})
+    if only:  # the counts of the selection: what the report and the strata see
+        counts_raw = {str(k): sum(kk == k for kk, _ in only) for k in sorted({k for k, _ in only})}
     if not isinstance(counts_raw, Mapping):
         raise where.error("phantoms.counts", "a table touches -> number of phantoms, e.g. {1 = 100, 2 = 100}",
                           counts_raw)
@@ -91,7 +119,7 @@ def _random_phantoms(where: _Where, tab: dict) -> RandomPhantoms:
         gap = v.real("min_gap_mm", gap, lo=0)
     except ParameterError as exc:
         raise where.wrap("phantoms.min_gap_mm", exc) from None
-    return RandomPhantoms(seed=seed, counts=tuple(sorted(counts)),
+    return RandomPhantoms(seed=seed, counts=tuple(sorted(counts)), only=only,
                           depth_mm=_number_pair(where, "phantoms.depth_mm", tab.get("depth_mm", list(d.depth_mm)), 0),
                           radius_mm=_number_pair(where, "phantoms.radius_mm", tab.get("radius_mm",
                                                                                       list(d.radius_mm)), 0),

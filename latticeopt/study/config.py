@@ -202,6 +202,9 @@ def study_from_dict(raw: Mapping, *, source: str = "<dict>", overridden: Mapping
             what = "a depth series" if kind == "press" else "the probe grid"
             raise where.error("multilevel", f"no [multilevel] table in a kind = '{kind}' study ({what} is not a "
                               "random sample)", raw["multilevel"])
+        if phantom_set.only:
+            raise where.error("phantoms.only", "no phantoms.only in a study with [multilevel] (the two-level "
+                              "estimator samples every phantom of its counts)", list(raw["phantoms"]["only"]))
         if adaptive is not None:  # each chooses its own phantom counts; combining them is not implemented
             raise where.error("phantoms.target_se", "no phantoms.target_se in a study with [multilevel] (the two-"
                               "level estimator chooses its own fine counts; use one or the other)",

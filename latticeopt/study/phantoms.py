@@ -189,7 +189,10 @@ def press_series(x_mm: float, y_mm: float, radius_mm: float, depths_mm: Sequence
 class RandomPhantoms:
     """Random touches (``kind = "grid"``), as in the paper: see :func:`random_phantoms`.
 
-    ``counts`` holds ``(touches, how many)`` pairs, e.g. ``((1, 100), (2, 100), (3, 100))``.
+    ``counts`` holds ``(touches, how many)`` pairs, e.g. ``((1, 100), (2, 100), (3, 100))``: the first ``n``
+    phantoms of every touch count. ``only`` instead picks single phantoms of the same streams by ``(touches,
+    index)``, e.g. ``((1, 13), (2, 9))``: phantom 13 of the single touches and phantom 9 of the pairs, exactly as
+    a study with larger counts and the same seed and ranges sees them (the failures of a map, re-run alone).
     """
 
     seed: int = 0
@@ -197,10 +200,13 @@ class RandomPhantoms:
     depth_mm: tuple[float, float] = (1.0, 5.0)
     radius_mm: tuple[float, float] = (6.25, 8.75)
     min_gap_mm: float = 0.0
+    only: tuple[tuple[int, int], ...] = ()
 
     def generate(self, size_mm: float) -> tuple[Phantom, ...]:
-        return random_phantoms(size_mm, dict(self.counts), self.seed, depth_range_mm=self.depth_mm,
-                               radius_range_mm=self.radius_mm, min_gap_mm=self.min_gap_mm)
+        ranges = {"depth_range_mm": self.depth_mm, "radius_range_mm": self.radius_mm, "min_gap_mm": self.min_gap_mm}
+        if self.only:
+            return tuple(random_phantom(size_mm, k, i, self.seed, **ranges) for k, i in self.only)
+        return random_phantoms(size_mm, dict(self.counts), self.seed, **ranges)
 
 
 @dataclass(frozen=True)
