@@ -36,6 +36,10 @@ class Features:
     silicone_mm: float
     silicone_at: tuple[float, float] | None
 
+    def describe(self) -> str:
+        """``"narrowest gel X mm, narrowest silicone Y mm"`` (3 significant digits), as the reports print it."""
+        return f"narrowest gel {self.gel_mm:.3g} mm, narrowest silicone {self.silicone_mm:.3g} mm"
+
     def below(self, min_channel_mm: float, min_island_mm: float,
               keys: tuple[str, str] = ("min_channel_mm", "min_island_mm")) -> list[str]:
         """One phrase per limit the layout breaks, naming the feature, its width and place, and the limit's

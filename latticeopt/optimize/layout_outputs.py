@@ -29,7 +29,7 @@ def mould_lines(geom, size_mm: float, limits) -> list[str]:
 
     f = narrowest_features(geom, size_mm)
     (gel_key, gel_mm), (sil_key, sil_mm) = limits
-    lines = [f"what the mould must make: narrowest gel {f.gel_mm:.3g} mm, narrowest silicone {f.silicone_mm:.3g} mm"]
+    lines = [f"what the mould must make: {f.describe()}"]
     for phrase in f.below(gel_mm, sil_mm, (gel_key, sil_key)):
         lines.append(f"WARNING: the outline has {phrase} (fill or trim it before casting)")
         log.warning("the outline has %s", phrase)

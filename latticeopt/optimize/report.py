@@ -202,8 +202,7 @@ def _fmt_x(x: dict) -> str:
 
 def features_text(features, constraints) -> str:
     """One line on what a mould has to make for the optimum, and which fabrication limit its edges break."""
-    text = (f"layout of the optimum: narrowest gel {features.gel_mm:.3g} mm, narrowest silicone "
-            f"{features.silicone_mm:.3g} mm (measured on the footprint)")
+    text = f"layout of the optimum: {features.describe()} (measured on the footprint)"
     below = features.below(constraints.min_channel_mm, constraints.min_island_mm)
     if below:
         text += ("; BELOW the fabrication limits where the sensor's edge clips the pattern, which the width bounds "
