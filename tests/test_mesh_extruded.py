@@ -4,7 +4,9 @@ the ``auto`` mesher choice, mean-dilatation cells of every mesher, and a locking
 from __future__ import annotations
 
 import dataclasses
+import json
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -302,3 +304,20 @@ def test_auto_channel_cells_is_the_family_count_and_keys_follow_the_table(monkey
     assert EvalSettings(mesh=auto).key != before
     with pytest.raises(ParameterError, match="channel_cells.*'auto'"):
         MeshSettings(channel_cells="many")
+
+
+STUDY_LAYOUTS = sorted((Path(__file__).parents[1] / "studies" / "data").glob("*.geojson"))
+
+
+@pytest.mark.parametrize("path", STUDY_LAYOUTS, ids=lambda p: p.stem)
+def test_every_committed_layout_meshes_exactly(path):
+    """Every outline the docs report (``studies/data``) is meshed exactly: the hydrogel tets fill the file's
+    polygons times t, the polygons read straight from the GeoJSON by shapely (not through the design)."""
+    raw = json.loads(path.read_text())
+    features = raw["features"] if raw.get("type") == "FeatureCollection" else [raw]
+    file_area = shapely.union_all([shapely.geometry.shape(f.get("geometry", f)) for f in features]).area
+    design = LatticeDesign(pattern="custom", custom_polygons_mm=read_geojson(path))
+    mesh = mesh_design(design, MeshSettings(size_mm=SIZE, channel_cells=1, layer_cells=1), cache_dir=False)
+    assert mesh.region_volumes_mm3()["hydrogel"] == pytest.approx(file_area * design.thickness_mm, rel=1e-9)
+    assert mesh.region_volumes_mm3()["hydrogel"] + mesh.region_volumes_mm3()["islands"] == pytest.approx(
+        design.size_mm ** 2 * design.thickness_mm, rel=1e-12)
