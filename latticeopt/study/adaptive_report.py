@@ -20,7 +20,17 @@ from pathlib import Path
 from ..captions import counted
 from .adaptive_sweep import AdaptiveRun
 from .config import Study
-from .report import _fmt, _value, floor_text, mean_se, round_off_lines, smallest_reference, write_tables_and_figures
+from .report import (
+    _fmt,
+    _value,
+    floor_text,
+    mean_se,
+    phantom_name,
+    rerun_lines,
+    round_off_lines,
+    smallest_reference,
+    write_tables_and_figures,
+)
 
 __all__ = ["adaptive_summary", "paired_difference", "write_adaptive_outputs"]
 
@@ -85,9 +95,10 @@ def _exclusion_lines(study: Study, run: AdaptiveRun) -> list[str]:
             p = study.phantoms[j]
             who = [_fmt(study.designs[i], study.grid_fields) for i in run.compared
                    if (i, j) in run.evaluations and not run.evaluations[(i, j)].ok]
-            lines.append(f"excluded phantom {p.index} ({p.n_touches} touches): failed for {'; '.join(who)}")
+            lines.append(f"excluded phantom {phantom_name(p)} ({p.n_touches} touches): failed for {'; '.join(who)}")
         if len(run.excluded) > _LISTED:
             lines.append(f"... and {len(run.excluded) - _LISTED} more excluded phantoms")
+        lines += rerun_lines(study, list(run.excluded))
     return lines
 
 

@@ -45,8 +45,9 @@ from .config import Study
 from .layout_plot import plot_layouts
 from .store import Evaluation
 
-__all__ = ["ROUND_OFF_REL", "best_design", "comparison_set", "mean_se", "floor_text", "paired_to_best", "press_curves",
-           "press_ratios", "results_rows", "round_off_lines", "smallest_reference",
+__all__ = ["ROUND_OFF_REL", "best_design", "comparison_set", "failed_lines", "mean_se", "floor_text", "paired_to_best",
+           "phantom_name", "press_curves", "press_ratios", "rerun_lines", "results_rows", "round_off_lines",
+           "smallest_reference",
            "summarize", "write_csv", "write_outputs", "write_tables_and_figures"]
 
 
@@ -263,6 +264,38 @@ def press_ratios(study: Study, evaluations: Sequence[Evaluation]) -> list[dict]:
 _LISTED = 10
 
 
+def phantom_name(phantom) -> str:
+    """``"K:I"``: phantom ``I`` with ``K`` touches, the name ``[phantoms] only`` takes."""
+    return f"{phantom.n_touches}:{phantom.index}"
+
+
+def failed_lines(study: Study, failures: Sequence[tuple[int, int, str, str | None]]) -> list[str]:
+    """Report lines on failed evaluations, ``(design position, phantom position, level, error)`` each (level
+    ``""`` for a one-level sweep): one per phantom (the first :data:`_LISTED`), named ``K:I``, then the
+    ``[phantoms] only`` line that re-runs them alone (random phantoms only); nothing when none failed."""
+    by_phantom: dict[int, list[str]] = {}
+    for i, j, level, err in failures:
+        where = f"{level}, " if level else ""
+        by_phantom.setdefault(j, []).append(f"{where}{_fmt(study.designs[i], study.grid_fields)}: {_first_line(err)}")
+    lines = []
+    for k, (j, why) in enumerate(sorted(by_phantom.items())):
+        if k == _LISTED:
+            lines.append(f"... and {len(by_phantom) - _LISTED} more failed phantoms (results.csv)")
+            break
+        p = study.phantoms[j]
+        lines.append(f"failed phantom {phantom_name(p)} ({p.n_touches} touches, index {p.index}): {'; '.join(why)}")
+    return lines + rerun_lines(study, sorted(by_phantom))
+
+
+def rerun_lines(study: Study, positions: Sequence[int]) -> list[str]:
+    """The ``[phantoms] only`` line that re-runs the phantoms at ``positions`` alone (a study with the same
+    seed and ranges and their designs in ``[grid]``); none for no phantoms or a study of fixed presses."""
+    if not positions or study.kind != "grid":
+        return []
+    names = ", ".join(f'"{phantom_name(study.phantoms[j])}"' for j in positions)
+    return [f"re-run them alone (same seed and ranges, their designs in [grid]): [phantoms] only = [{names}]"]
+
+
 def _comparison_lines(study: Study, evaluations: Sequence[Evaluation]) -> tuple[list[str], list[dict]]:
     """Report lines on which phantoms the designs were compared on, and the rows of ``excluded.csv``."""
     cmp = comparison_set(study, evaluations)
@@ -285,14 +318,14 @@ def _comparison_lines(study: Study, evaluations: Sequence[Evaluation]) -> tuple[
         p = study.phantoms[ex["phantom"]]
         why = "; ".join(f"{_fmt(study.designs[i], study.grid_fields)}: {err}" for i, err in ex["failed"])
         if k < _LISTED:
-            lines.append(f"excluded phantom {p.index} ({p.n_touches} touches): failed for {why}")
+            lines.append(f"excluded phantom {phantom_name(p)} ({p.n_touches} touches): failed for {why}")
         for i, err in ex["failed"]:
             rows.append({"phantom_index": p.index, "n_touches": p.n_touches, "phantom_key": p.key,
                          "design": _fmt(study.designs[i], study.grid_fields),
                          "design_key": study.designs[i].content_hash(), "error": err})
     if len(cmp["excluded"]) > _LISTED:
         lines.append(f"... and {len(cmp['excluded']) - _LISTED} more excluded phantoms, all in excluded.csv")
-    return lines, rows
+    return lines + rerun_lines(study, [ex["phantom"] for ex in cmp["excluded"]]), rows
 
 
 def write_tables_and_figures(study: Study, result_rows: Sequence[dict], summary: Sequence[dict], out: Path) -> dict:
