@@ -20,10 +20,13 @@ Example
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
-__all__ = ["Features", "narrowest_features"]
+from .errors import ParameterError
+
+__all__ = ["Features", "castable_widths", "narrowest_features", "spans_text"]
 
 
 @dataclass(frozen=True)
@@ -98,3 +101,40 @@ def narrowest_features(footprint, size_mm: float, tolerance_mm: float = 1e-3) ->
             c = radius.coords[0]
             sil, sil_at = 2 * radius.length, (c[0], c[1])
     return Features(gel, gel_at, sil, sil_at)
+
+
+def castable_widths(design, lower_mm: float, upper_mm: float, min_channel_mm: float, min_island_mm: float,
+                    step_mm: float = 0.1) -> list[tuple[float, float]]:
+    """The channel widths of ``design``'s layout (everything else as it is) whose footprint meets both limits
+    everywhere, edges included: ``w`` on a ``step_mm`` grid over ``[lower_mm, upper_mm]``, consecutive passing
+    widths merged into ``(first, last)`` intervals. A width the design rejects counts as failing.
+
+    The limits of a lattice hold in its interior by its bounds; where the sensor's edge clips the pattern they
+    need not, so the castable widths are generally not one interval.
+
+    Examples
+    --------
+    >>> from latticeopt import LatticeDesign
+    >>> castable_widths(LatticeDesign(pattern="hexagonal"), 5.0, 6.0, 1.0, 1.0)
+    [(5.4, 5.6)]
+    """
+    n = int(math.floor((upper_mm - lower_mm) / step_mm + 1e-9))
+    out: list[tuple[float, float]] = []
+    last_ok = False
+    for w in (round(lower_mm + k * step_mm, 9) for k in range(n + 1)):
+        try:
+            d = dataclasses.replace(design, width_mm=float(w))
+        except ParameterError:
+            ok = False
+        else:
+            f = narrowest_features(d.footprint(), d.size_mm)
+            ok = f.gel_mm >= min_channel_mm and f.silicone_mm >= min_island_mm
+        if ok:
+            out[-1:] = [(out[-1][0], w)] if last_ok else out[-1:] + [(w, w)]
+        last_ok = ok
+    return out
+
+
+def spans_text(spans: list[tuple[float, float]]) -> str:
+    """``"1.8-3.5, 5.4"`` for the intervals of :func:`castable_widths`; ``"none"`` for none."""
+    return ", ".join(f"{a:g}" if a == b else f"{a:g}-{b:g}" for a, b in spans) or "none"

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import json
 import os
 import subprocess
 import sys
@@ -10,7 +11,9 @@ from pathlib import Path
 
 import pytest
 
+from latticeopt.design import LatticeDesign
 from latticeopt.errors import ParameterError
+from latticeopt.fabrication import narrowest_features
 from latticeopt.optimize import load_categories, run_optimization
 
 TESTS = Path(__file__).resolve().parent
@@ -91,6 +94,23 @@ def test_cli_ranks_the_combinations(tmp_path):
     hex_report = (tmp_path / "out" / "pattern-hexagonal_rim-none" / "families_report.txt").read_text()
     assert "BELOW the fabrication limits" in hex_report and "< min_island_mm = 1" in hex_report
     assert "BELOW" not in (tmp_path / "out" / "pattern-square_rim-none" / "families_report.txt").read_text()
+    # ... and the widths whose honeycomb meets both limits everywhere: each interval's ends pass, the grid
+    # widths just outside them (in the bounds 1-6 mm) fail, measured one by one on the footprint
+    result = json.loads((tmp_path / "out" / "pattern-hexagonal_rim-none" / "families_result.json").read_text())
+    spans = result["castable_widths_mm"]
+    assert spans and "widths whose layout meets both limits everywhere" in hex_report
+
+    def castable(w):
+        f = narrowest_features(LatticeDesign(pattern="hexagonal", width_mm=w, thickness_mm=3.0).footprint(), 100.0)
+        return f.gel_mm >= 0.5 and f.silicone_mm >= 1.0  # the defaults of min_channel_mm and min_island_mm
+
+    for a, b in spans:
+        assert castable(a) and castable(b)
+        assert all(not castable(round(w, 1)) for w in (a - 0.1, b + 0.1) if 1.0 <= round(w, 1) <= 6.0)
+    hex_row = next(r for r in rows if r["category"] == "pattern-hexagonal_rim-none")
+    assert hex_row["castable_widths_mm"] == ", ".join(f"{a:g}" if a == b else f"{a:g}-{b:g}" for a, b in spans)
+    square_result = (tmp_path / "out" / "pattern-square_rim-none" / "families_result.json").read_text()
+    assert json.loads(square_result)["castable_widths_mm"] is None  # nothing broken: no scan
     assert f"wrote figure: {tmp_path / 'out' / 'categories.png'}" in done.stdout  # every path on one axis
     assert (tmp_path / "out" / "categories.png").stat().st_size > 10_000
 

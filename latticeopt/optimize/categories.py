@@ -25,6 +25,7 @@ from pathlib import Path
 
 from ..design import PATTERNS, RIMS
 from ..errors import ParameterError
+from ..fabrication import spans_text
 from ..study.keynames import KeyNames
 from .load import optimization_from_dict
 from .problem import Optimization
@@ -112,7 +113,8 @@ def write_summary(pairs: Sequence[tuple], path: Path) -> list[str]:
             layout = res.optimum_layout
             row.update({"score": best.score, "se": best.se, "v_rel_median": median, "v_rel_max_share": share,
                         **{k: val for k, val in best.x.items()}, "narrowest_gel_mm": layout.gel_mm,
-                        "narrowest_silicone_mm": layout.silicone_mm})
+                        "narrowest_silicone_mm": layout.silicone_mm,
+                        "castable_widths_mm": "" if res.castable_widths is None else spans_text(res.castable_widths)})
         rows.append(row)
     path.parent.mkdir(parents=True, exist_ok=True)
     fields = list(dict.fromkeys(k for r in rows for k in r))

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from .._jsonout import jsonable
+from ..fabrication import spans_text
 from ..study.imaging import FIGURES
 from ..study.report import floor_text, round_off_lines, write_csv
 from ..study.store import STORE_NAME, ResultStore
@@ -200,14 +201,18 @@ def _fmt_x(x: dict) -> str:
     return ", ".join(f"{_label(k).replace(' (mm)', '')} = {val:.4g} mm" for k, val in x.items())
 
 
-def features_text(features, constraints) -> str:
-    """One line on what a mould has to make for the optimum, and which fabrication limit its edges break."""
+def features_text(features, constraints, castable: list | None = None) -> list[str]:
+    """What a mould has to make for the optimum, which fabrication limit its edges break, and (``castable``:
+    ``(first, last)`` intervals, :attr:`OptimizationResult.castable_widths`) the widths that break none."""
     text = f"layout of the optimum: {features.describe()} (measured on the footprint)"
     below = features.below(constraints.min_channel_mm, constraints.min_island_mm)
     if below:
         text += ("; BELOW the fabrication limits where the sensor's edge clips the pattern, which the width bounds "
                  "do not see: " + "; ".join(below))
-    return text
+    if castable is None:
+        return [text]
+    return [text, f"widths whose layout meets both limits everywhere (0.1 mm grid in the bounds, the other "
+                  f"variables at the optimum): {spans_text(castable)} mm"]
 
 
 def report_lines(result) -> list[str]:
@@ -263,7 +268,7 @@ def report_lines(result) -> list[str]:
         active = [k for k, g in result.best.constraints.items() if g > -1e-3]
         if active:
             lines.append("constraints active at the optimum: " + ", ".join(active))
-        lines.append(features_text(result.optimum_layout, opt.config.constraints))
+        lines += features_text(result.optimum_layout, opt.config.constraints, result.castable_widths)
     lines += round_off_lines([(_fmt_x(s.x), s.assessment.min_reference_rel) for s in fresh],
                              opt.study.settings.physics_settings.measurement_floor_rel)
     for st in result.optimum.starts:
@@ -302,6 +307,7 @@ def write_optimization_outputs(result) -> tuple[dict, list[str]]:
                                                      "image_figures": best.assessment.image_figures,
                                                      "call": best.index, "design_key": best.assessment.design_key},
                "optimum_layout": None if best is None else dataclasses.asdict(result.optimum_layout),
+               "castable_widths_mm": result.castable_widths,
                "improvement_over_start": None if result.paired is None else dict(zip(("diff", "se"), result.paired)),
                "starts": [{"x0": s.x0, "result": s.result, "calls": s.evaluations, "message": s.message}
                           for s in result.optimum.starts],

@@ -14,7 +14,7 @@ import numpy as np
 
 from ..design import LatticeDesign
 from ..errors import AllFailedError, LatticeoptError, ParameterError
-from ..fabrication import Features, narrowest_features
+from ..fabrication import Features, castable_widths, narrowest_features
 from ..study.imaging import FIGURES, ReconstructorCache, probe_image_figures, probe_presses
 from ..study.phantoms import Phantom
 from ..study.report import mean_se
@@ -124,6 +124,19 @@ class OptimizationResult:
         problem = self.optimization.problem
         design = problem.design(np.array([self.best.x[n] for n in problem.names]))
         return narrowest_features(design.footprint(), design.size_mm)
+
+    @functools.cached_property
+    def castable_widths(self) -> list[tuple[float, float]] | None:
+        """Where the optimum's layout breaks a mould limit (:attr:`optimum_layout`, at the sensor's edge) and the
+        width is a variable: the widths in its bounds whose layout meets both limits everywhere, on a 0.1 mm grid
+        with the other variables at the optimum (:func:`~latticeopt.fabrication.castable_widths`); else ``None``."""
+        c, problem = self.optimization.config.constraints, self.optimization.problem
+        layout = self.optimum_layout
+        if layout is None or not layout.below(c.min_channel_mm, c.min_island_mm) or "width_mm" not in problem.names:
+            return None
+        k = problem.names.index("width_mm")
+        design = problem.design(np.array([self.best.x[n] for n in problem.names]))
+        return castable_widths(design, problem.lower[k], problem.upper[k], c.min_channel_mm, c.min_island_mm)
 
 
 @contextlib.contextmanager
