@@ -177,7 +177,7 @@ def test_a_failed_phantom_is_left_out_for_every_design(tmp_path):
         assert len(prefix) >= MIN  # the replacement phantom was run
     assert "1 phantoms excluded" in "\n".join(res.report)
     assert "excluded phantom 2:0 (2 touches)" in "\n".join(res.report)
-    assert '[phantoms] only = ["2:0"]' in res.report[-1]
+    assert """--set 'phantoms.only=["2:0"]'""" in res.report[-1]
 
 
 @pytest.mark.parametrize("extra, key", [

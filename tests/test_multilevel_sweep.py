@@ -308,7 +308,7 @@ def test_a_fine_failure_leaves_the_phantom_out_for_every_design_at_both_levels(t
     report = (study.out_dir / "report.txt").read_text()
     assert "failed: 0 coarse and 1 fine evaluations, on 1 of 36 phantoms" in report
     assert "failed phantom 2:0 (2 touches, index 0): fine, width = 4 mm: ConvergenceError" in report
-    assert '[phantoms] only = ["2:0"]' in report
+    assert """--set 'phantoms.only=["2:0"]'""" in report
 
 
 def test_coarse_mesh_changes_only_the_keys_given_and_keeps_the_rest_of_the_fine_mesh(tmp_path):

@@ -114,7 +114,7 @@ def test_unknown_key_named_with_valid_keys(tmp_path, edit, key, fragment):
     (("counts = { 1 = 2, 2 = 1 }", 'only = "1:3"'), "phantoms.only"),             # not a list
     (("counts = { 1 = 2, 2 = 1 }", 'only = ["1/3"]'), "phantoms.only"),
     (("counts = { 1 = 2, 2 = 1 }", 'only = []'), "phantoms.only"),
-    (("seed = 1", 'seed = 1\nonly = ["1:3"]'), "phantoms.counts"),               # both pick the phantoms
+    (("seed = 1", 'seed = 1\nonly = ["1:3"]'), "phantoms.only"),                 # not among the counts' 1:0, 1:1
     (("counts = { 1 = 2, 2 = 1 }", 'only = ["1:3"]\ntarget_se = 0.01'), "phantoms.target_se"),
 ])
 def test_invalid_study_rejected_naming_file_and_key(tmp_path, edit, key):
@@ -125,15 +125,17 @@ def test_invalid_study_rejected_naming_file_and_key(tmp_path, edit, key):
     assert str(info.value).startswith(f"{path}: {key}:"), str(info.value)
 
 
-def test_only_picks_the_phantoms_a_larger_study_draws(tmp_path):
-    """``phantoms.only`` re-runs single phantoms of a study: the same touches as the full study's (its streams
-    are per phantom), in the order listed, with their indices; counts are the selection's."""
-    full = load_study(_write(tmp_path, BASE.replace("counts = { 1 = 2, 2 = 1 }", "counts = { 1 = 8, 2 = 5 }")))
-    picked = load_study(_write(tmp_path, BASE.replace("counts = { 1 = 2, 2 = 1 }", 'only = ["2:4", "1:7"]')))
-    by_key = {(p.n_touches, p.index): p for p in full.phantoms}
-    assert [(p.n_touches, p.index) for p in picked.phantoms] == [(2, 4), (1, 7)]
-    assert [p.touches for p in picked.phantoms] == [by_key[2, 4].touches, by_key[1, 7].touches]
-    assert dict(picked.phantom_set.counts) == {1: 1, 2: 1}
+def test_only_picks_phantoms_of_the_study(tmp_path):
+    """``phantoms.only`` re-runs some phantoms of a study: the same touches as the whole study's (its streams
+    are per phantom), in the order listed, with their indices; from the file or by --set on the study."""
+    path = _write(tmp_path, BASE.replace("counts = { 1 = 2, 2 = 1 }", "counts = { 1 = 8, 2 = 5 }"))
+    by_key = {(p.n_touches, p.index): p for p in load_study(path).phantoms}
+    for picked in (load_study(path, ['phantoms.only=["2:4", "1:7"]']),
+                   load_study(_write(tmp_path, path.read_text().replace("2 = 5 }", '2 = 5 }\nonly = ["2:4", "1:7"]')))):
+        assert [(p.n_touches, p.index) for p in picked.phantoms] == [(2, 4), (1, 7)]
+        assert [p.touches for p in picked.phantoms] == [by_key[2, 4].touches, by_key[1, 7].touches]
+    with pytest.raises(ParameterError, match=r"phantoms.only: .*\{ 1 = 8, 2 = 5 \}.*got \['2:5'\]"):
+        load_study(path, ['phantoms.only=["2:5"]'])  # the counts draw 2:0 to 2:4
     with pytest.raises(ParameterError, match="phantoms.only"):
         load_study(_write(tmp_path, ML.replace("counts = { 1 = 2, 2 = 2 }", 'only = ["1:0", "1:1", "2:0", "2:1"]')))
 

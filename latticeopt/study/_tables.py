@@ -67,14 +67,14 @@ def _number_pair(where: _Where, key: str, val: object, lo: float) -> tuple[float
     return float(val[0]), float(val[1])
 
 
-_ONLY = (f"a non-empty list of distinct 'touches:index' strings, e.g. [\"1:13\", \"2:9\"] (touches 1..{MAX_TOUCHES}, "
-         "index >= 0: phantom index of that touch count)")
+_ONLY = ("a non-empty list of distinct 'touches:index' strings, e.g. [\"1:13\", \"2:9\"], each a phantom of the "
+         "counts: index < counts[touches]")
 
 
-def _only(where: _Where, tab: dict) -> tuple[tuple[int, int], ...]:
-    """``phantoms.only``: single phantoms of the seed's streams, ``"K:I"`` = phantom ``I`` with ``K`` touches."""
+def _only(where: _Where, tab: dict, counts: dict[int, int]) -> tuple[tuple[int, int], ...]:
+    """``phantoms.only``: some of the phantoms ``counts`` draws, ``"K:I"`` = phantom ``I`` with ``K`` touches."""
     val = tab["only"]
-    for key in ("counts", *_ADAPTIVE_KEYS):
+    for key in _ADAPTIVE_KEYS:
         if key in tab:
             raise where.error(f"phantoms.{key}", f"no phantoms.{key} beside phantoms.only (only picks the "
                               "phantoms itself)", tab[key])
@@ -84,8 +84,9 @@ def _only(where: _Where, tab: dict) -> tuple[tuple[int, int], ...]:
     for item in val:
         parts = item.split(":") if isinstance(item, str) else []
         ok = len(parts) == 2 and all(p.strip().isdigit() for p in parts)
-        if not ok or not 1 <= int(parts[0]) <= MAX_TOUCHES:
-            raise where.error("phantoms.only", _ONLY, val)
+        if not ok or int(parts[1]) >= counts.get(int(parts[0]), 0):
+            have = ", ".join(f"{k} = {n}" for k, n in sorted(counts.items()))
+            raise where.error("phantoms.only", f"{_ONLY} ({{ {have} }})", val)
         picked.append((int(parts[0]), int(parts[1])))
     if len(set(picked)) != len(picked):
         raise where.error("phantoms.only", _ONLY + "; a phantom is listed twice", val)
@@ -98,10 +99,7 @@ def _random_phantoms(where: _Where, tab: dict) -> RandomPhantoms:
     seed = tab.get("seed", d.seed)
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise where.error("phantoms.seed", "an integer >= 0", seed)
-    only = _only(where, tab) if "only" in tab else ()
     counts_raw = tab.get("counts", {str(k): n for k, n in d.counts})
-    if only:  # the counts of the selection: what the report and the strata see
-        counts_raw = {str(k): sum(kk == k for kk, _ in only) for k in sorted({k for k, _ in only})}
     if not isinstance(counts_raw, Mapping):
         raise where.error("phantoms.counts", "a table touches -> number of phantoms, e.g. {1 = 100, 2 = 100}",
                           counts_raw)
@@ -114,6 +112,7 @@ def _random_phantoms(where: _Where, tab: dict) -> RandomPhantoms:
         counts.append((int(k), n))
     if sum(n for _, n in counts) == 0:
         raise where.error("phantoms.counts", "at least one phantom", counts_raw)
+    only = _only(where, tab, dict(counts)) if "only" in tab else ()
     gap = tab.get("min_gap_mm", d.min_gap_mm)
     try:
         gap = v.real("min_gap_mm", gap, lo=0)

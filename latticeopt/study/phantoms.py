@@ -190,9 +190,9 @@ class RandomPhantoms:
     """Random touches (``kind = "grid"``), as in the paper: see :func:`random_phantoms`.
 
     ``counts`` holds ``(touches, how many)`` pairs, e.g. ``((1, 100), (2, 100), (3, 100))``: the first ``n``
-    phantoms of every touch count. ``only`` instead picks single phantoms of the same streams by ``(touches,
-    index)``, e.g. ``((1, 13), (2, 9))``: phantom 13 of the single touches and phantom 9 of the pairs, exactly as
-    a study with larger counts and the same seed and ranges sees them (the failures of a map, re-run alone).
+    phantoms of every touch count. ``only`` keeps just some of those by ``(touches, index)``, e.g. ``((1, 13), (2,
+    9))``: phantom 13 of the single touches and phantom 9 of the pairs, the very touches of the whole study (the
+    failures of a map, re-run alone).
     """
 
     seed: int = 0

@@ -288,12 +288,13 @@ def failed_lines(study: Study, failures: Sequence[tuple[int, int, str, str | Non
 
 
 def rerun_lines(study: Study, positions: Sequence[int]) -> list[str]:
-    """The ``[phantoms] only`` line that re-runs the phantoms at ``positions`` alone (a study with the same
-    seed and ranges and their designs in ``[grid]``); none for no phantoms or a study of fixed presses."""
+    """The ``phantoms.only`` setting that re-runs the phantoms at ``positions`` alone (``--set`` on the same
+    study, or ``[phantoms] only`` in a copy); none for no phantoms or a study of fixed presses."""
     if not positions or study.kind != "grid":
         return []
     names = ", ".join(f'"{phantom_name(study.phantoms[j])}"' for j in positions)
-    return [f"re-run them alone (same seed and ranges, their designs in [grid]): [phantoms] only = [{names}]"]
+    return [f"re-run them alone (a plain sweep of the same study, its designs or fewer): --set 'phantoms.only="
+            f"[{names}]'"]
 
 
 def _comparison_lines(study: Study, evaluations: Sequence[Evaluation]) -> tuple[list[str], list[dict]]:
