@@ -265,18 +265,18 @@ _LISTED = 10
 
 
 def phantom_name(phantom) -> str:
-    """``"K:I"``: phantom ``I`` with ``K`` touches, the name ``[phantoms] only`` takes."""
+    """``"K:I"``: phantom ``I`` with ``K`` touches, the name ``phantoms.only`` takes."""
     return f"{phantom.n_touches}:{phantom.index}"
 
 
 def failed_lines(study: Study, failures: Sequence[tuple[int, int, str, str | None]]) -> list[str]:
-    """Report lines on failed evaluations, ``(design position, phantom position, level, error)`` each (level
-    ``""`` for a one-level sweep): one per phantom (the first :data:`_LISTED`), named ``K:I``, then the
-    ``[phantoms] only`` line that re-runs them alone (random phantoms only); nothing when none failed."""
+    """Report lines on the failed evaluations of a two-level sweep, ``(design position, phantom position, level,
+    error)`` each: one per phantom (the first :data:`_LISTED`), named ``K:I``, then :func:`rerun_lines`;
+    nothing when none failed."""
     by_phantom: dict[int, list[str]] = {}
     for i, j, level, err in failures:
-        where = f"{level}, " if level else ""
-        by_phantom.setdefault(j, []).append(f"{where}{_fmt(study.designs[i], study.grid_fields)}: {_first_line(err)}")
+        by_phantom.setdefault(j, []).append(f"{level}, {_fmt(study.designs[i], study.grid_fields)}: "
+                                            f"{_first_line(err)}")
     lines = []
     for k, (j, why) in enumerate(sorted(by_phantom.items())):
         if k == _LISTED:
