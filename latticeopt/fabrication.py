@@ -26,7 +26,11 @@ from dataclasses import dataclass
 
 from .errors import ParameterError
 
-__all__ = ["Features", "castable_widths", "narrowest_features", "spans_text"]
+__all__ = ["TOLERANCE_MM", "Features", "castable_widths", "narrowest_features", "spans_text"]
+
+#: Accuracy of the measured widths (mm): the inscribed circles' tolerance. A feature breaks a limit only when it
+#: is narrower by more than this, so a lattice at its bound (an island of exactly ``min_island_mm``) passes.
+TOLERANCE_MM = 1e-3
 
 
 @dataclass(frozen=True)
@@ -45,18 +49,18 @@ class Features:
 
     def below(self, min_channel_mm: float, min_island_mm: float,
               keys: tuple[str, str] = ("min_channel_mm", "min_island_mm")) -> list[str]:
-        """One phrase per limit the layout breaks, naming the feature, its width and place, and the limit's
-        key (``keys``: the gel's, the silicone's); empty if none."""
+        """One phrase per limit the layout breaks (narrower by more than :data:`TOLERANCE_MM`), naming the
+        feature, its width and place, and the limit's key (``keys``: the gel's, the silicone's); empty if none."""
         out = []
         for what, width, at, key, limit in (("gel", self.gel_mm, self.gel_at, keys[0], min_channel_mm),
                                             ("silicone", self.silicone_mm, self.silicone_at, keys[1],
                                              min_island_mm)):
-            if width < limit:
+            if width < limit - TOLERANCE_MM:
                 out.append(f"{what} {width:.3g} mm wide at ({at[0]:.4g}, {at[1]:.4g}) mm < {key} = {limit:g}")
         return out
 
 
-def narrowest_features(footprint, size_mm: float, tolerance_mm: float = 1e-3) -> Features:
+def narrowest_features(footprint, size_mm: float, tolerance_mm: float = TOLERANCE_MM) -> Features:
     """The narrowest gel and silicone features of the hydrogel ``footprint`` in the ``size_mm`` square.
 
     Parameters
@@ -107,7 +111,8 @@ def castable_widths(design, lower_mm: float, upper_mm: float, min_channel_mm: fl
                     step_mm: float = 0.1) -> list[tuple[float, float]]:
     """The channel widths of ``design``'s layout (everything else as it is) whose footprint meets both limits
     everywhere, edges included: ``w`` on a ``step_mm`` grid over ``[lower_mm, upper_mm]``, consecutive passing
-    widths merged into ``(first, last)`` intervals. A width the design rejects counts as failing.
+    widths merged into ``(first, last)`` intervals (:meth:`Features.below`: up to :data:`TOLERANCE_MM` narrower
+    passes). A width the design rejects counts as failing.
 
     The limits of a lattice hold in its interior by its bounds; where the sensor's edge clips the pattern they
     need not, so the castable widths are generally not one interval.
@@ -127,8 +132,7 @@ def castable_widths(design, lower_mm: float, upper_mm: float, min_channel_mm: fl
         except ParameterError:
             ok = False
         else:
-            f = narrowest_features(d.footprint(), d.size_mm)
-            ok = f.gel_mm >= min_channel_mm and f.silicone_mm >= min_island_mm
+            ok = not narrowest_features(d.footprint(), d.size_mm).below(min_channel_mm, min_island_mm)
         if ok:
             out[-1:] = [(out[-1][0], w)] if last_ok else out[-1:] + [(w, w)]
         last_ok = ok

@@ -8,7 +8,7 @@ import pytest
 import shapely
 
 from latticeopt import LatticeDesign
-from latticeopt.fabrication import narrowest_features
+from latticeopt.fabrication import castable_widths, narrowest_features, spans_text
 
 L = 100.0
 
@@ -68,6 +68,33 @@ def test_edge_strips_agree_with_a_wall_by_wall_measurement(pattern, w):
     assert f.gel_mm == pytest.approx(min(to_walls, between), abs=1e-9)
     assert f.silicone_mm == pytest.approx(thinnest, abs=2e-3)
     assert min(f.gel_mm, f.silicone_mm) < 1.0  # each of these lattices has a sub-millimetre edge feature
+
+
+@pytest.mark.parametrize("min_island, rim, spans", [
+    (1.0, "none", [(1.0, 8.0)]),        # channel w >= 1, island 12.5 - w >= 1: every width of the bounds
+    (5.0, "none", [(1.0, 7.5)]),        # island 12.5 - w >= 5
+    (1.0, "channel", [(2.0, 8.0)]),     # the rim channel w / 2 >= 1
+])
+def test_castable_widths_of_the_square_lattice_are_its_analytic_limits(min_island, rim, spans):
+    """The square lattice has no edge feature below its channel and island (p = 12.5 mm puts a channel end under
+    every electrode): its castable widths are w >= limit (w / 2 with the rim channel) and p - w >= limit."""
+    assert castable_widths(LatticeDesign(rim=rim), 1.0, 8.0, 1.0, min_island) == spans
+
+
+def test_castable_widths_split_where_an_edge_feature_breaks_a_limit():
+    """Each reported interval passes at its ends and fails just outside them, measured width by width; a width
+    the design refuses (triangular: w < 2/3 p = 8.33 mm) counts as failing."""
+    spans = castable_widths(LatticeDesign(pattern="triangular"), 1.0, 9.0, 1.0, 1.0)
+    assert len(spans) >= 2 and spans[-1][1] < 8.34
+
+    def ok(w):
+        f = narrowest_features(LatticeDesign(pattern="triangular", width_mm=w).footprint(), 100.0)
+        return f.gel_mm >= 1.0 - 1e-3 and f.silicone_mm >= 1.0 - 1e-3
+
+    for a, b in spans:
+        assert ok(a) and ok(b) and not ok(round(a - 0.1, 1)) and not ok(round(b + 0.1, 1))
+    assert spans_text(spans) == ", ".join(f"{a:g}-{b:g}" if a != b else f"{a:g}" for a, b in spans)
+    assert spans_text([]) == "none"
 
 
 def test_a_density_study_report_warns_of_features_below_its_mould_naming_the_key():
