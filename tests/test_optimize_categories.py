@@ -115,6 +115,29 @@ def test_cli_ranks_the_combinations(tmp_path):
     assert (tmp_path / "out" / "categories.png").stat().st_size > 10_000
 
 
+def test_check_castable_scores_the_castable_width_nearest_the_optimum_in_each_interval(tmp_path):
+    """The honeycomb's optimum (w = 2.5) breaks a limit at the edge; with check_castable the nearest castable
+    width of each interval is scored like a call: the double's V_rel there, and minus the optimum's, paired."""
+    runs = load_categories(_study(tmp_path), ["optimize.check_castable=true",
+                                              'optimize.categories.pattern=["hexagonal"]',
+                                              'optimize.categories.rim=["none"]'])
+    res = run_optimization(runs[0].optimization, family_evaluate)
+    spans = res.castable_widths
+    w_opt = res.best.x["width_mm"]
+    want = [min(max(w_opt, a), b) for a, b in spans]
+    assert [c.width_mm for c in res.castable_checks] == pytest.approx(want)
+    for c in res.castable_checks:
+        exact = 0.06 - 0.002 * (c.width_mm - 2.5) ** 2
+        assert c.assessment.score == pytest.approx(exact, rel=1e-12)
+        assert c.minus_optimum[0] == pytest.approx(exact - res.best.score, abs=1e-12)
+    assert sum("castable: width = " in line for line in res.report) == len(want)
+    payload = json.loads(res.outputs["result"].read_text())
+    assert [c["width_mm"] for c in payload["castable_checks"]] == pytest.approx(want)
+    # the checked designs are stored: a re-run reads them back instead of computing them again
+    again = run_optimization(runs[0].optimization, family_evaluate)
+    assert again.computed == 0 and [c.assessment.computed for c in again.castable_checks] == [0] * len(want)
+
+
 def test_the_figure_needs_one_shared_variable(tmp_path):
     import matplotlib.image
 

@@ -115,6 +115,11 @@ def write_summary(pairs: Sequence[tuple], path: Path) -> list[str]:
                         **{k: val for k, val in best.x.items()}, "narrowest_gel_mm": layout.gel_mm,
                         "narrowest_silicone_mm": layout.silicone_mm,
                         "castable_widths_mm": "" if res.castable_widths is None else spans_text(res.castable_widths)})
+            scored = [c for c in res.castable_checks if math.isfinite(c.assessment.score)]
+            if scored:  # the best castable width scored beside the optimum
+                top = max(scored, key=lambda c: c.assessment.score)
+                row.update({"castable_width_mm": top.width_mm, "castable_score": top.assessment.score,
+                            "castable_se": top.assessment.se})
         rows.append(row)
     path.parent.mkdir(parents=True, exist_ok=True)
     fields = list(dict.fromkeys(k for r in rows for k in r))

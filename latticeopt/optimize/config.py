@@ -135,6 +135,7 @@ class OptimizeConfig:
     initial_step: float = 0.25
     starts: int = 1
     seed: int = 0
+    check_castable: bool = False
 
     def __post_init__(self) -> None:
         if not self.variables or not all(isinstance(x, Variable) for x in self.variables):
@@ -154,6 +155,8 @@ class OptimizeConfig:
         object.__setattr__(self, "max_evals", v.integer("max_evals", self.max_evals, lo=0))
         object.__setattr__(self, "starts", v.integer("starts", self.starts, lo=1))
         object.__setattr__(self, "seed", v.integer("seed", self.seed, lo=0))
+        if not isinstance(self.check_castable, bool):
+            raise ParameterError("check_castable", "true or false", self.check_castable)
         if not (self.max_evals or self.max_time_s):
             raise ParameterError("max_evals", "a limit (max_evals > 0 or max_time_s > 0): evaluations are expensive "
                                  "and global algorithms stop only on these", self.max_evals)

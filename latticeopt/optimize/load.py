@@ -24,7 +24,7 @@ __all__ = ["load_categories", "load_optimization", "optimization_from_dict", "re
 
 _KEYS = ("algorithm", "local_algorithm", "objective", "quantile", "uniformity", "image", "bootstrap", "constraints",
          "constraint_method", "penalty_weight", "max_evals", "max_time_s", "xtol_abs_mm", "xtol_rel", "ftol_abs",
-         "ftol_rel", "initial_step", "starts", "seed", "variables")
+         "ftol_rel", "initial_step", "starts", "seed", "check_castable", "variables")
 _VAR_KEYS = ("lower", "upper", "start")
 _CONSTRAINT_KEYS = ("min_channel_mm", "min_island_mm", "min_substrate_mm", "max_hydrogel_stretch")
 #: ``[optimize.uniformity]`` keys: the probe grid's (:class:`~latticeopt.study.phantoms.ProbePresses`), each the

@@ -13,6 +13,7 @@ import dataclasses
 import json
 import math
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -269,6 +270,12 @@ def report_lines(result) -> list[str]:
         if active:
             lines.append("constraints active at the optimum: " + ", ".join(active))
         lines += features_text(result.optimum_layout, opt.config.constraints, result.castable_widths)
+        for chk in result.castable_checks:  # scored like a call: the same describe()
+            line = "castable: " + describe(SimpleNamespace(x={**result.best.x, "width_mm": chk.width_mm},
+                                                           assessment=chk.assessment))
+            if chk.minus_optimum is not None:
+                line += "; minus the optimum {:+.5g} ± {:.2g} (paired)".format(*chk.minus_optimum)
+            lines.append(line)
     lines += round_off_lines([(_fmt_x(s.x), s.assessment.min_reference_rel) for s in fresh],
                              opt.study.settings.physics_settings.measurement_floor_rel)
     for st in result.optimum.starts:
@@ -308,6 +315,11 @@ def write_optimization_outputs(result) -> tuple[dict, list[str]]:
                                                      "call": best.index, "design_key": best.assessment.design_key},
                "optimum_layout": None if best is None else dataclasses.asdict(result.optimum_layout),
                "castable_widths_mm": result.castable_widths,
+               "castable_checks": [{"width_mm": c.width_mm, "score": c.assessment.score, "se": c.assessment.se,
+                                    "v_rel_mean": c.assessment.v_rel_mean, "v_rel_se": c.assessment.v_rel_se,
+                                    "n_failed": c.assessment.n_failed, "design_key": c.assessment.design_key,
+                                    "minus_optimum": None if c.minus_optimum is None
+                                    else dict(zip(("diff", "se"), c.minus_optimum))} for c in result.castable_checks],
                "improvement_over_start": None if result.paired is None else dict(zip(("diff", "se"), result.paired)),
                "starts": [{"x0": s.x0, "result": s.result, "calls": s.evaluations, "message": s.message}
                           for s in result.optimum.starts],

@@ -24,7 +24,7 @@ from .driver import Assessment, Optimum, Step, minimize
 from .objectives import Objective
 from .problem import Optimization
 
-__all__ = ["OptimizationResult", "assess_design", "run_optimization"]
+__all__ = ["CastableCheck", "OptimizationResult", "assess_design", "run_optimization"]
 
 
 def _image_figures(design: LatticeDesign, evs, probes: Sequence[Phantom], objective: Objective,
@@ -99,6 +99,7 @@ class OptimizationResult:
     optimum: Optimum
     seconds: float
     paired: tuple[float, float] | None = None
+    castable_checks: tuple[CastableCheck, ...] = ()
     outputs: dict = field(default_factory=dict)
     report: tuple[str, ...] = ()
 
@@ -130,13 +131,55 @@ class OptimizationResult:
         """Where the optimum's layout breaks a mould limit (:attr:`optimum_layout`, at the sensor's edge) and the
         width is a variable: the widths in its bounds whose layout meets both limits everywhere, on a 0.1 mm grid
         with the other variables at the optimum (:func:`~latticeopt.fabrication.castable_widths`); else ``None``."""
-        c, problem = self.optimization.config.constraints, self.optimization.problem
-        layout = self.optimum_layout
-        if layout is None or not layout.below(c.min_channel_mm, c.min_island_mm) or "width_mm" not in problem.names:
-            return None
-        k = problem.names.index("width_mm")
-        design = problem.design(np.array([self.best.x[n] for n in problem.names]))
-        return castable_widths(design, problem.lower[k], problem.upper[k], c.min_channel_mm, c.min_island_mm)
+        return _castable_widths(self.optimization, self.best)
+
+
+@dataclass(frozen=True)
+class CastableCheck:
+    """A castable width scored beside the optimum (``[optimize] check_castable``): the width of one interval of
+    :attr:`OptimizationResult.castable_widths` nearest the optimum's, its assessment, and its score minus the
+    optimum's, paired over the phantoms both solved (``None`` if it failed every phantom)."""
+
+    width_mm: float
+    assessment: Assessment
+    minus_optimum: tuple[float, float] | None
+
+
+def _castable_widths(opt: Optimization, best: Step | None) -> list[tuple[float, float]] | None:
+    c, problem = opt.config.constraints, opt.problem
+    if best is None or "width_mm" not in problem.names:
+        return None
+    design = problem.design(np.array([best.x[n] for n in problem.names]))
+    if not narrowest_features(design.footprint(), design.size_mm).below(c.min_channel_mm, c.min_island_mm):
+        return None
+    k = problem.names.index("width_mm")
+    return castable_widths(design, problem.lower[k], problem.upper[k], c.min_channel_mm, c.min_island_mm)
+
+
+def _paired(objective: Objective, a: Assessment, b: Assessment) -> tuple[float, float] | None:
+    """Score of ``a`` minus ``b``'s with its SE, over the phantoms (and probes) both solved."""
+    ra, rb, pa, pb = (np.asarray(x) for x in (a.random_v, b.random_v, a.probe_v, b.probe_v))
+    ca, cb = (np.asarray(x, dtype=float) for x in (a.probe_cc, b.probe_cc))
+    keep_r, keep_p = np.isfinite(ra) & np.isfinite(rb), np.isfinite(pa) & np.isfinite(pb)
+    if ca.size:
+        keep_p &= np.isfinite(ca) & np.isfinite(cb)
+        ca, cb = ca[keep_p], cb[keep_p]
+    if not keep_r.any():
+        return None
+    return objective.paired_difference((ra[keep_r], pa[keep_p], ca), (rb[keep_r], pb[keep_p], cb))
+
+
+def _check_castable(opt: Optimization, best: Step | None, assess: Callable) -> tuple[CastableCheck, ...]:
+    """Score, per interval of castable widths, its width nearest the optimum's (other variables at the optimum)."""
+    spans = _castable_widths(opt, best) or []
+    w_opt = best.x["width_mm"] if spans else None
+    widths = dict.fromkeys(round(min(max(w_opt, a), b), 6) for a, b in spans)
+    checks = []
+    for w in widths:
+        x = np.array([w if n == "width_mm" else best.x[n] for n in opt.problem.names])
+        a = assess(opt.problem.design(x))
+        checks.append(CastableCheck(w, a, _paired(opt.config.objective, a, best.assessment)))
+    return tuple(checks)
 
 
 @contextlib.contextmanager
@@ -210,20 +253,12 @@ def run_optimization(opt: Optimization, evaluate: Callable | None = None, *, job
             need_stretch=opt.config.constraints.max_hydrogel_stretch is not None, jobs=jobs, backend=backend,
             scheduler=scheduler, images=ReconstructorCache(), retry_failed=retry_failed)
         optimum = minimize(opt.problem, opt.config, assess, callback=callback)
+        checks = _check_castable(opt, optimum.best, assess) if opt.config.check_castable else ()
     paired = None
     if optimum.best is not None and optimum.start_step is not None and optimum.start_step.assessment is not None:
-        a, b = optimum.best.assessment, optimum.start_step.assessment
-        ra, rb, pa, pb = (np.asarray(x) for x in (a.random_v, b.random_v, a.probe_v, b.probe_v))
-        ca, cb = (np.asarray(x, dtype=float) for x in (a.probe_cc, b.probe_cc))
-        keep_r, keep_p = np.isfinite(ra) & np.isfinite(rb), np.isfinite(pa) & np.isfinite(pb)
-        if ca.size:
-            keep_p &= np.isfinite(ca) & np.isfinite(cb)
-            ca, cb = ca[keep_p], cb[keep_p]
-        if keep_r.any():
-            paired = opt.config.objective.paired_difference((ra[keep_r], pa[keep_p], ca),
-                                                            (rb[keep_r], pb[keep_p], cb))
+        paired = _paired(opt.config.objective, optimum.best.assessment, optimum.start_step.assessment)
     result = OptimizationResult(optimization=opt, settings=settings, out_dir=out, optimum=optimum,
-                                seconds=time.perf_counter() - t0, paired=paired)
+                                seconds=time.perf_counter() - t0, paired=paired, castable_checks=checks)
     if outputs:
         from .report import write_optimization_outputs
 
