@@ -91,7 +91,15 @@ def assess_design(design: LatticeDesign, *, phantoms: Sequence[Phantom], probes:
 # -- running a study ------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class OptimizationResult:
-    """What :func:`run_optimization` did: the optimum, the history, the starts, the outputs."""
+    """What :func:`run_optimization` did: the optimum, the history, the starts, the outputs.
+
+    ``optimum_layout`` is the narrowest gel and silicone of the optimum's layout, measured on its footprint
+    (:mod:`latticeopt.fabrication`; ``None`` without a feasible optimum). Where it breaks a mould limit (at the
+    sensor's edge) and the width is a variable, ``castable_widths`` holds the widths in its bounds whose layout meets
+    both limits everywhere, on a 0.1 mm grid with the other variables at the optimum
+    (:func:`~latticeopt.fabrication.castable_widths`), else ``None``; ``castable_checks`` scores them
+    (``[optimize] check_castable``).
+    """
 
     optimization: Optimization
     settings: EvalSettings
@@ -99,6 +107,8 @@ class OptimizationResult:
     optimum: Optimum
     seconds: float
     paired: tuple[float, float] | None = None
+    optimum_layout: Features | None = None
+    castable_widths: list[tuple[float, float]] | None = None
     castable_checks: tuple[CastableCheck, ...] = ()
     outputs: dict = field(default_factory=dict)
     report: tuple[str, ...] = ()
@@ -116,23 +126,6 @@ class OptimizationResult:
         """Phantoms computed by this run (the rest were read from the store)."""
         return sum(s.assessment.computed for s in self.history if s.assessment is not None and not s.repeat)
 
-    @functools.cached_property
-    def optimum_layout(self) -> Features | None:
-        """The narrowest gel and silicone of the optimum's layout, measured on its footprint
-        (:mod:`latticeopt.fabrication`); ``None`` without a feasible optimum."""
-        if self.best is None:
-            return None
-        problem = self.optimization.problem
-        design = problem.design(np.array([self.best.x[n] for n in problem.names]))
-        return narrowest_features(design.footprint(), design.size_mm)
-
-    @functools.cached_property
-    def castable_widths(self) -> list[tuple[float, float]] | None:
-        """Where the optimum's layout breaks a mould limit (:attr:`optimum_layout`, at the sensor's edge) and the
-        width is a variable: the widths in its bounds whose layout meets both limits everywhere, on a 0.1 mm grid
-        with the other variables at the optimum (:func:`~latticeopt.fabrication.castable_widths`); else ``None``."""
-        return _castable_widths(self.optimization, self.best)
-
 
 @dataclass(frozen=True)
 class CastableCheck:
@@ -145,15 +138,17 @@ class CastableCheck:
     minus_optimum: tuple[float, float] | None
 
 
-def _castable_widths(opt: Optimization, best: Step | None) -> list[tuple[float, float]] | None:
+def _fabrication(opt: Optimization, best: Step | None) -> tuple[Features | None, list[tuple[float, float]] | None]:
+    """:attr:`OptimizationResult.optimum_layout` and :attr:`OptimizationResult.castable_widths`, measured once."""
+    if best is None:
+        return None, None
     c, problem = opt.config.constraints, opt.problem
-    if best is None or "width_mm" not in problem.names:
-        return None
     design = problem.design(np.array([best.x[n] for n in problem.names]))
-    if not narrowest_features(design.footprint(), design.size_mm).below(c.min_channel_mm, c.min_island_mm):
-        return None
+    layout = narrowest_features(design.footprint(), design.size_mm)
+    if "width_mm" not in problem.names or not layout.below(c.min_channel_mm, c.min_island_mm):
+        return layout, None
     k = problem.names.index("width_mm")
-    return castable_widths(design, problem.lower[k], problem.upper[k], c.min_channel_mm, c.min_island_mm)
+    return layout, castable_widths(design, problem.lower[k], problem.upper[k], c.min_channel_mm, c.min_island_mm)
 
 
 def _paired(objective: Objective, a: Assessment, b: Assessment) -> tuple[float, float] | None:
@@ -169,11 +164,10 @@ def _paired(objective: Objective, a: Assessment, b: Assessment) -> tuple[float, 
     return objective.paired_difference((ra[keep_r], pa[keep_p], ca), (rb[keep_r], pb[keep_p], cb))
 
 
-def _check_castable(opt: Optimization, best: Step | None, assess: Callable) -> tuple[CastableCheck, ...]:
+def _check_castable(opt: Optimization, best: Step, spans: list[tuple[float, float]],
+                    assess: Callable) -> tuple[CastableCheck, ...]:
     """Score, per interval of castable widths, its width nearest the optimum's (other variables at the optimum)."""
-    spans = _castable_widths(opt, best) or []
-    w_opt = best.x["width_mm"] if spans else None
-    widths = dict.fromkeys(round(min(max(w_opt, a), b), 6) for a, b in spans)
+    widths = dict.fromkeys(round(min(max(best.x["width_mm"], a), b), 6) for a, b in spans)
     checks = []
     for w in widths:
         x = np.array([w if n == "width_mm" else best.x[n] for n in opt.problem.names])
@@ -253,12 +247,14 @@ def run_optimization(opt: Optimization, evaluate: Callable | None = None, *, job
             need_stretch=opt.config.constraints.max_hydrogel_stretch is not None, jobs=jobs, backend=backend,
             scheduler=scheduler, images=ReconstructorCache(), retry_failed=retry_failed)
         optimum = minimize(opt.problem, opt.config, assess, callback=callback)
-        checks = _check_castable(opt, optimum.best, assess) if opt.config.check_castable else ()
+        layout, spans = _fabrication(opt, optimum.best)
+        checks = _check_castable(opt, optimum.best, spans, assess) if opt.config.check_castable and spans else ()
     paired = None
     if optimum.best is not None and optimum.start_step is not None and optimum.start_step.assessment is not None:
         paired = _paired(opt.config.objective, optimum.best.assessment, optimum.start_step.assessment)
     result = OptimizationResult(optimization=opt, settings=settings, out_dir=out, optimum=optimum,
-                                seconds=time.perf_counter() - t0, paired=paired, castable_checks=checks)
+                                seconds=time.perf_counter() - t0, paired=paired, optimum_layout=layout,
+                                castable_widths=spans, castable_checks=checks)
     if outputs:
         from .report import write_optimization_outputs
 
