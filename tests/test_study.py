@@ -136,6 +136,9 @@ def test_only_picks_phantoms_of_the_study(tmp_path):
         assert [p.touches for p in picked.phantoms] == [by_key[2, 4].touches, by_key[1, 7].touches]
     with pytest.raises(ParameterError, match=r"phantoms.only: .*\{ 1 = 8, 2 = 5 \}.*got \['2:5'\]"):
         load_study(path, ['phantoms.only=["2:5"]'])  # the counts draw 2:0 to 2:4
+    for bad, shown in (('"2:4"', "'2:4'"), ("nan", "nan"), ('["2:4", "2:4"]', "listed twice")):
+        with pytest.raises(ParameterError, match=rf"phantoms.only: .*counts = \{{ 1 = 8, 2 = 5 \}}.*{shown}"):
+            load_study(path, [f"phantoms.only={bad}"])  # every bad form names the counts it must come from
     with pytest.raises(ParameterError, match="phantoms.only"):
         load_study(_write(tmp_path, ML.replace("counts = { 1 = 2, 2 = 2 }", 'only = ["1:0", "1:1", "2:0", "2:1"]')))
 

@@ -78,18 +78,18 @@ def _only(where: _Where, tab: dict, counts: dict[int, int]) -> tuple[tuple[int, 
         if key in tab:
             raise where.error(f"phantoms.{key}", f"no phantoms.{key} beside phantoms.only (only picks the "
                               "phantoms itself)", tab[key])
+    allowed = f"{_ONLY} (counts = {{ {', '.join(f'{k} = {n}' for k, n in sorted(counts.items()))} }})"
     if not isinstance(val, list) or not val:
-        raise where.error("phantoms.only", _ONLY, val)
+        raise where.error("phantoms.only", allowed, val)
     picked = []
     for item in val:
         parts = item.split(":") if isinstance(item, str) else []
         ok = len(parts) == 2 and all(p.strip().isdigit() for p in parts)
         if not ok or int(parts[1]) >= counts.get(int(parts[0]), 0):
-            have = ", ".join(f"{k} = {n}" for k, n in sorted(counts.items()))
-            raise where.error("phantoms.only", f"{_ONLY} ({{ {have} }})", val)
+            raise where.error("phantoms.only", allowed, val)
         picked.append((int(parts[0]), int(parts[1])))
     if len(set(picked)) != len(picked):
-        raise where.error("phantoms.only", _ONLY + "; a phantom is listed twice", val)
+        raise where.error("phantoms.only", allowed + "; a phantom is listed twice", val)
     return tuple(picked)
 
 
