@@ -131,6 +131,9 @@ def test_check_castable_scores_the_castable_width_nearest_the_optimum_in_each_in
         assert c.assessment.score == pytest.approx(exact, rel=1e-12)
         assert c.minus_optimum[0] == pytest.approx(exact - res.best.score, abs=1e-12)
     assert sum("castable: width = " in line for line in res.report) == len(want)
+    n_ph = len(runs[0].optimization.study.phantoms)
+    assert f"then {len(want)} castable width(s) x {n_ph} phantoms: {len(want) * n_ph} computed, 0 failed" \
+        in res.report[0]
     payload = json.loads(res.outputs["result"].read_text())
     assert [c["width_mm"] for c in payload["castable_checks"]] == pytest.approx(want)
     # the checked designs are stored: a re-run reads them back instead of computing them again
