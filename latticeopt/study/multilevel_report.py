@@ -193,10 +193,6 @@ def write_multilevel_outputs(study: Study, run: MultilevelRun, out: Path) -> tup
             lines.append(f"not compared: {_fmt(study.designs[i], study.grid_fields)}: every coarse phantom failed")
     failures = [(*divmod(k, nph), "coarse", e.error) for k, e in enumerate(run.coarse) if not e.ok]
     failures += [(i, j, "fine", e.error) for (i, j), e in sorted(run.fine.items()) if not e.ok]
-    n_coarse = sum(level == "coarse" for *_, level, _ in failures)
-    lines.append(f"failed: {n_coarse} coarse and {len(failures) - n_coarse} fine evaluations, on "
-                 f"{len({j for _, j, _, _ in failures})} of {nph} phantoms (a phantom any compared design failed is "
-                 "left out for all)")
     lines += failed_lines(study, failures)
     order = sorted((i for i in run.compared if run.estimates[i] is not None), key=lambda i: -run.estimates[i].mean)
     for rank, i in enumerate(order, 1):

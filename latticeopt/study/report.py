@@ -271,13 +271,15 @@ def phantom_name(phantom) -> str:
 
 def failed_lines(study: Study, failures: Sequence[tuple[int, int, str, str | None]]) -> list[str]:
     """Report lines on the failed evaluations of a two-level sweep, ``(design position, phantom position, level,
-    error)`` each: one per phantom (the first :data:`_LISTED`), named ``K:I``, then :func:`rerun_lines`;
-    nothing when none failed."""
+    error)`` each: their count per level, then one line per phantom (the first :data:`_LISTED`), named ``K:I``,
+    then :func:`rerun_lines`."""
     by_phantom: dict[int, list[str]] = {}
     for i, j, level, err in failures:
         by_phantom.setdefault(j, []).append(f"{level}, {_fmt(study.designs[i], study.grid_fields)}: "
                                             f"{_first_line(err)}")
-    lines = []
+    n_coarse = sum(level == "coarse" for *_, level, _ in failures)
+    lines = [f"failed: {n_coarse} coarse and {len(failures) - n_coarse} fine evaluations, on {len(by_phantom)} of "
+             f"{len(study.phantoms)} phantoms (a phantom any compared design failed is left out for all)"]
     for k, (j, why) in enumerate(sorted(by_phantom.items())):
         if k == _LISTED:
             lines.append(f"... and {len(by_phantom) - _LISTED} more failed phantoms (results.csv)")
