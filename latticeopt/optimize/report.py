@@ -216,12 +216,12 @@ def features_text(features, constraints, castable: list | None = None) -> list[s
                   f"variables at the optimum): {spans_text(castable)} mm"]
 
 
-def _checks_text(result) -> str:
-    """The castable widths scored after the search (``check_castable``), counted like its calls."""
+def _checks_text(result, n_ph: int) -> str:
+    """The castable widths scored after the search (``check_castable``, ``n_ph`` phantoms and probes each),
+    counted like its calls."""
     checks = [c.assessment for c in result.castable_checks]
     if not checks:
         return ""
-    n_ph = len(result.optimization.study.phantoms) + len(result.optimization.probes)
     return (f"; then {len(checks)} castable width(s) x {n_ph} phantoms: "
             f"{sum(a.computed for a in checks)} computed, {sum(a.n_failed for a in checks)} failed")
 
@@ -237,7 +237,7 @@ def report_lines(result) -> list[str]:
              f"{len(fresh)} designs x {n_ph} phantoms: {result.computed} phantoms computed, "
              f"{len(fresh) * n_ph - result.computed} read from the store; "
              f"{sum(s.assessment.n_failed for s in fresh)} phantoms failed (a design with a failed phantom is "
-             f"infeasible: {sum(s.assessment.n_failed > 0 for s in fresh)} designs)" + _checks_text(result),
+             f"infeasible: {sum(s.assessment.n_failed > 0 for s in fresh)} designs)" + _checks_text(result, n_ph),
              f"objective: maximize {obj.describe()}; effective bounds {effective_bounds_text(opt.problem)}"
              + floor_text(opt.study.settings.physics_settings.measurement_floor_rel)]
     lines += [f"bound tightened: {t}" for t in opt.problem.folded]
