@@ -23,6 +23,10 @@ from datetime import datetime
 from pathlib import Path
 
 
+#: A row charged this much (s) beyond the model's own time carries its chunk's per-design set-up.
+SETUP_MIN_S = 0.1
+
+
 def _level(settings: dict) -> str:
     mesh = settings.get("mesh") or {}
     mech = settings.get("mechanics_mesh")
@@ -51,16 +55,20 @@ def main(argv: list[str] | None = None) -> int:
         print(f"map_time: --workers >= 1 and --gap-min > 0, got {args.workers} and {args.gap_min}", file=sys.stderr)
         return 2
     con = sqlite3.connect(f"file:{store}?mode=ro", uri=True)
-    rows = con.execute("SELECT settings_key, settings_json, design_json, status, seconds, created_utc "
+    rows = con.execute("SELECT settings_key, settings_json, design_json, status, seconds, created_utc, timings_json "
                        "FROM evaluations").fetchall()
     levels: dict[str, dict] = {}
     per_design: dict[str, Counter] = defaultdict(Counter)
     stamps = []
-    for key, settings, design, status, seconds, created in rows:
+    for key, settings, design, status, seconds, created, timings in rows:
         lv = levels.setdefault(key, {"name": _level(json.loads(settings)), "ok": 0, "failed": 0,
-                                     "s_ok": 0.0, "s_failed": 0.0})
+                                     "s_ok": 0.0, "s_failed": 0.0, "setups": 0, "s_setup": 0.0})
         lv[status] += 1
         lv[f"s_{status}"] += seconds or 0.0
+        own = (json.loads(timings) if timings else {}).get("total")
+        if own is not None and seconds is not None and seconds - own > SETUP_MIN_S:
+            lv["setups"] += 1
+            lv["s_setup"] += seconds - own
         per_design[key][_design(json.loads(design))] += 1
         stamps.append(datetime.fromisoformat(created.replace("Z", "+00:00")))
     print(f"{store}: {len(rows)} evaluations")
@@ -76,6 +84,13 @@ def main(argv: list[str] | None = None) -> int:
         print(f"| {lv['name']} | {lv['ok'] + lv['failed']:,} ({lv['failed']}) | {per_ok:.2f} | {per_failed:.1f} | "
               f"{hours:.2f} | {hours / args.workers:.2f} |")
     print(f"| all | {len(rows):,} | | | {total:.2f} | {total / args.workers:.2f} |")
+    print("\n| level | set-ups paid | s per set-up | set-up worker hours | share of the level's hours |")
+    print("|---|---|---|---|---|")
+    for lv in sorted(levels.values(), key=lambda v: -(v["ok"] + v["failed"])):
+        spent = lv["s_ok"] + lv["s_failed"]
+        per = lv["s_setup"] / lv["setups"] if lv["setups"] else float("nan")
+        print(f"| {lv['name']} | {lv['setups']:,} | {per:.2f} | {lv['s_setup'] / 3600:.2f} | "
+              f"{lv['s_setup'] / spent if spent else float('nan'):.3f} |")
     if len(levels) > 1:
         fine = min(levels, key=lambda k: levels[k]["ok"] + levels[k]["failed"])
         counts = sorted(per_design[fine].values())

@@ -87,6 +87,19 @@ def test_mirror_symmetric_touches_give_equal_vrel(model):
     assert a.forces_N[0] == pytest.approx(b.forces_N[0], rel=1e-6)
 
 
+def test_a_press_gives_the_same_result_whatever_the_model_ran_before(model, tmp_path):
+    """A sweep worker keeps a design's model for its next chunks: a phantom must not see the earlier ones."""
+    fresh = CoupledModel(LatticeDesign(width_mm=4, thickness_mm=3), COARSE, cache_dir=tmp_path)
+    press = [Touch(40, 55, 7.0, 2.0), Touch(70, 30, 6.0, 1.5)]
+    first = fresh.simulate(press)
+    model.simulate([Touch(60, 60, 9.0, 3.0)])  # a deeper press, more load steps and another factorization
+    after = model.simulate(press)
+    np.testing.assert_allclose(after.voltages, first.voltages, rtol=1e-10, atol=0)
+    np.testing.assert_allclose(after.indentation.displacement_mm, first.indentation.displacement_mm, rtol=0,
+                               atol=1e-12)
+    assert after.newton_steps == first.newton_steps
+
+
 def test_evaluate_phantom_returns_store_keys(tmp_path):
     settings = EvalSettings(mesh=COARSE, cache_dir=str(tmp_path))
     out = evaluate_phantom(LatticeDesign(width_mm=0, thickness_mm=3), Phantom((Touch(50, 50, 7, 1.0),)), settings)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import builtins
 import csv
+import dataclasses
 import os
 import re
 import signal
@@ -522,18 +523,48 @@ def test_a_bug_in_the_prepare_hook_stops_the_sweep(tmp_path):
         assert len(store) == 3 and all(e.ok for e in store.rows())  # the w = 0 design, none recorded as failed
 
 
-def test_prepare_hook_runs_once_per_chunk_of_one_design(tmp_path, monkeypatch):
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_prepare_hook_runs_once_per_design_and_worker(tmp_path, monkeypatch, jobs):
+    """A design's later chunks reuse the model its worker prepared for an earlier one (never another design's)."""
     from latticeopt.study.sweep import CHUNK_PHANTOMS
 
     monkeypatch.setenv(LOG_ENV, str(tmp_path / "evals.log"))
-    study = _study(tmp_path, n1=5, n2=3)  # 8 phantoms per design, 2 designs
+    study = _study(tmp_path, n1=10, n2=6)  # 16 phantoms per design, 2 designs
+    assert 16 // CHUNK_PHANTOMS >= 3  # several chunks per design, so the count below shows the reuse
     plain = run_sweep(study, fake_evaluate, progress=False, out_dir=tmp_path / "plain", outputs=False)
-    prepared = run_sweep(study, fake_evaluate_prepared, progress=False, out_dir=tmp_path / "prep", outputs=False)
+    prepared = run_sweep(study, fake_evaluate_prepared, jobs=jobs, progress=False, out_dir=tmp_path / "prep",
+                         outputs=False)
     assert [e.v_rel for e in prepared.evaluations] == [e.v_rel for e in plain.evaluations]
     preps = (tmp_path / "evals.log.prepare").read_text().splitlines()
-    per_design = -(-8 // CHUNK_PHANTOMS)
-    assert len(preps) == 2 * per_design  # chunks never mix designs
-    assert len(set(preps[:per_design])) == 1 and preps[0] != preps[-1]
+    hashes = [d.content_hash() for d in study.designs]
+    # each worker takes the chunks in task order (design-major), so it prepares each design at most once
+    assert sorted(set(preps)) == sorted(hashes) and all(preps.count(h) <= jobs for h in hashes)
+    if jobs == 1:
+        assert preps == hashes
+
+
+def test_a_kept_model_is_dropped_for_another_design_or_settings(tmp_path):
+    from latticeopt.study import worker
+
+    study = _study(tmp_path, n1=1, n2=1)
+    built = []
+
+    def prepare(design, settings):
+        built.append((design.width_mm, settings.key))
+        return lambda phantom: {"v_rel": design.width_mm + 1.0}
+
+    other = dataclasses.replace(study.settings, mesh=dataclasses.replace(study.settings.mesh, size_mm=3.0))
+    assert other.key != study.settings.key
+    worker.forget_prepared()
+    for design, settings in [(study.designs[0], study.settings), (study.designs[0], study.settings),
+                             (study.designs[1], study.settings), (study.designs[1], other),
+                             (study.designs[1], other)]:
+        run, new = worker._prepared(prepare, design, settings)
+        assert run(None) == {"v_rel": design.width_mm + 1.0}
+    assert built == [(study.designs[0].width_mm, study.settings.key), (study.designs[1].width_mm, study.settings.key),
+                     (study.designs[1].width_mm, other.key)]
+    worker.forget_prepared()
+    assert worker._prepared(prepare, study.designs[1], other)[1] and len(built) == 4
 
 
 def test_a_grid_of_layout_files_says_which_hash_is_which_file(tmp_path):

@@ -44,7 +44,7 @@ from ..errors import LatticeoptError, ModelBugError, ParameterError
 from ..execution import BACKENDS, run_tasks
 from .settings import EvalSettings
 from .store import Evaluation, ResultStore, folder_lock
-from .worker import evaluate_chunk, result_to_evaluation
+from .worker import evaluate_chunk, forget_prepared, result_to_evaluation
 
 __all__ = ["BACKENDS", "CHUNK_PHANTOMS", "ERROR_LOG", "check_run_args", "evaluate_designs", "model_name",
            "resolve_model", "run_prefixes", "write_error_log"]
@@ -266,3 +266,5 @@ def _execute(tasks, todo, evaluate, settings, store, backend, jobs, scheduler, p
                             f"{path}") from None
     finally:
         bar.close()
+        if jobs <= 1 and backend != "dask":
+            forget_prepared()  # the chunks ran in this process: free the last design's model
