@@ -22,7 +22,6 @@ from collections import Counter, defaultdict
 from datetime import datetime
 from pathlib import Path
 
-
 #: A row charged this much (s) beyond the model's own time carries its chunk's per-design set-up.
 SETUP_MIN_S = 0.1
 

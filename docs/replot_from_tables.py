@@ -1,6 +1,6 @@
 """Re-draw the figures of runs too long to repeat from the tables of ``docs/results.md`` that summarize them.
 
-The paper maps (two-level, 5.2 h and 3.5 h on 2 cores) and the 12-phantom layout study (70 min) are not re-run
+The paper maps (two-level, 3.5-5 h each on 2 cores) and the 12-phantom layout study (70 min) are not re-run
 to change a title: their means, standard errors and fine counts are in the results tables, at the four digits
 the tables give. This script reads those tables and draws the figures with the sweep's own plotting code, so
 they name layout, mesh and phantom count like a fresh sweep's figures::
@@ -64,7 +64,7 @@ def layouts(text: str) -> None:
 
 def main() -> None:
     text = (DOCS / "results.md").read_text()
-    paper_map(text, "### The paper map: 30 designs", [], 280, "paper_fig4")
+    paper_map(text, "### The paper map: 30 designs", [], 300, "paper_fig4")
     paper_map(text, "### The paper map with the rim channel", ["design.rim=channel"], 292, "paper_fig4_rim")
     layouts(text)
 
