@@ -567,6 +567,34 @@ def test_a_kept_model_is_dropped_for_another_design_or_settings(tmp_path):
     assert worker._prepared(prepare, study.designs[1], other)[1] and len(built) == 4
 
 
+def test_a_model_that_a_bug_interrupted_is_built_again(tmp_path):
+    from latticeopt.study import worker
+
+    study = _study(tmp_path, n1=2, n2=1)
+    built = []
+
+    def evaluate(design, phantom, settings):  # plain calls are not used: the hook below is
+        raise AssertionError
+
+    def prepare(design, settings):
+        built.append(design.width_mm)
+
+        def run(phantom):
+            if phantom.index == 1:
+                raise KeyError("a bug, not a failed phantom")
+            return {"v_rel": 0.1}
+        return run
+
+    evaluate.prepare = prepare
+    worker.forget_prepared()
+    design, phantoms = study.designs[0], study.phantoms
+    assert [p["status"] for p in worker.evaluate_chunk(evaluate, design, phantoms[:1], study.settings)] == ["ok"]
+    assert [p["status"] for p in worker.evaluate_chunk(evaluate, design, phantoms[1:2], study.settings)] == ["bug"]
+    assert [p["status"] for p in worker.evaluate_chunk(evaluate, design, phantoms[:1], study.settings)] == ["ok"]
+    assert built == [design.width_mm, design.width_mm]  # kept after the first chunk, built again after the bug
+    worker.forget_prepared()
+
+
 def test_a_grid_of_layout_files_says_which_hash_is_which_file(tmp_path):
     from latticeopt.study.config import study_from_dict
 

@@ -45,7 +45,7 @@ def is_model_failure(exc: BaseException) -> bool:
     return type(exc).__name__ == "PyPardisoError" and getattr(exc, "value", None) in _PARDISO_SINGULAR
 
 
-#: The last model a ``prepare`` hook built in this thread: ``(prepare, design key, settings key, run)``. The executor
+#: The last model a ``prepare`` hook built in this thread: ``(prepare, (design key, settings key), run)``. The executor
 #: hands a design's chunks out in turn to the same few workers, so keeping it pays the set-up (meshes, symbolic
 #: factorization, reference voltages: about 1.2 s on the paper map's coarse level, 2-6 s on its fine one) once
 #: per design and worker instead of once per chunk. Per thread: a dask worker may run two chunks at once.
@@ -110,6 +110,7 @@ def evaluate_chunk(evaluate: Callable, design, phantoms, settings: EvalSettings)
             except Exception as exc:
                 if not is_model_failure(exc):
                     payloads.append(_bug_payload(exc, worker, "evaluate"))
+                    forget_prepared()  # a model a bug interrupted is not reused
                     break
                 result, status = {}, "failed"
                 error = f"{type(exc).__name__}: {exc}\n{traceback.format_exc()}"
