@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
+import math
 import os
 import subprocess
 import sys
@@ -139,6 +141,27 @@ def test_check_castable_scores_the_castable_width_nearest_the_optimum_in_each_in
     # the checked designs are stored: a re-run reads them back instead of computing them again
     again = run_optimization(runs[0].optimization, family_evaluate)
     assert again.computed == 0 and [c.assessment.computed for c in again.castable_checks] == [0] * len(want)
+
+
+def test_the_summary_names_a_castable_width_that_could_not_be_scored(tmp_path):
+    """A castable width whose check failed a phantom has no score: the summary's best castable width is the best
+    of the scored ones, and the unscored width is named beside it rather than dropped."""
+    from latticeopt.optimize.categories import write_summary
+
+    runs = load_categories(_study(tmp_path), ["optimize.check_castable=true",
+                                              'optimize.categories.pattern=["hexagonal"]',
+                                              'optimize.categories.rim=["none"]'])
+    res = run_optimization(runs[0].optimization, family_evaluate, outputs=False)
+    assert len(res.castable_checks) >= 2
+    best = max(res.castable_checks, key=lambda c: c.assessment.score)
+    failed = dataclasses.replace(best, assessment=dataclasses.replace(best.assessment, score=math.nan, n_failed=1),
+                                 minus_optimum=None)
+    res = dataclasses.replace(res, castable_checks=tuple(failed if c is best else c for c in res.castable_checks))
+    write_summary([(runs[0], res)], tmp_path / "summary.csv")
+    row = next(csv.DictReader(open(tmp_path / "summary.csv")))
+    rest = max((c for c in res.castable_checks if c is not failed), key=lambda c: c.assessment.score)
+    assert float(row["castable_width_mm"]) == pytest.approx(rest.width_mm)
+    assert row["castable_unscored_mm"] == f"{best.width_mm:g}"
 
 
 def test_the_figure_needs_one_shared_variable(tmp_path):

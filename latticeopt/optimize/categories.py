@@ -120,6 +120,9 @@ def write_summary(pairs: Sequence[tuple], path: Path) -> list[str]:
                 top = max(scored, key=lambda c: c.assessment.score)
                 row.update({"castable_width_mm": top.width_mm, "castable_score": top.assessment.score,
                             "castable_se": top.assessment.se})
+            unscored = [c.width_mm for c in res.castable_checks if not math.isfinite(c.assessment.score)]
+            if unscored:  # a phantom failed there: not comparable, so not "the best castable", but named
+                row["castable_unscored_mm"] = ", ".join(f"{w:g}" for w in unscored)
         rows.append(row)
     path.parent.mkdir(parents=True, exist_ok=True)
     fields = list(dict.fromkeys(k for r in rows for k in r))
