@@ -71,6 +71,22 @@ def test_the_figures_redrawn_from_tables_read_every_design():
                                                                          "n": 280, "n_fine": 15}
 
 
+def test_the_paired_differences_script_computes_nothing(tmp_path, capsys):
+    """docs/paper_map_paired.py reads a finished map; on a store that lacks evaluations it stops at once with a
+    message (exit 2) instead of running the sweep, and leaves the folder as it was."""
+    import importlib.util
+    import sqlite3
+
+    spec = importlib.util.spec_from_file_location("paired", ROOT / "docs" / "paper_map_paired.py")
+    paired = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(paired)
+    sqlite3.connect(tmp_path / "results.sqlite").close()  # an empty store: the map has not run
+    assert paired.main([str(tmp_path)]) == 2
+    assert "the map is not finished" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["results.sqlite"]
+    assert paired.main([str(tmp_path / "nowhere")]) == 2
+
+
 def test_the_exact_front_pairs_each_point_with_the_nearest_square_lattice(tmp_path):
     """docs/plot_front_exact.py on two small sweep folders written by hand: the paired difference over the common
     phantoms (a phantom one design failed is left out), the square of the nearest gel fraction, and the figure."""
