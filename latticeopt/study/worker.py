@@ -57,17 +57,16 @@ def forget_prepared() -> None:
     _last.entry = None
 
 
-def _prepared(prepare: Callable, design, settings: EvalSettings) -> tuple[Callable, bool]:
-    """``prepare(design, settings)``, or the run kept from the previous chunk of the same design and settings;
-    also whether it was built now."""
+def _prepared(prepare: Callable, design, settings: EvalSettings) -> Callable:
+    """``prepare(design, settings)``, or the run kept from the previous chunk of the same design and settings."""
     key = (design.content_hash(), settings.key)
     entry = getattr(_last, "entry", None)
     if entry is not None and entry[0] is prepare and entry[1] == key:
-        return entry[2], False
+        return entry[2]
     forget_prepared()  # before building the next one: never two models in memory at once
     run = prepare(design, settings)
     _last.entry = (prepare, key, run)
-    return run, True
+    return run
 
 
 def _bug_payload(exc: Exception, worker: dict, where: str) -> dict:
@@ -90,7 +89,7 @@ def evaluate_chunk(evaluate: Callable, design, phantoms, settings: EvalSettings)
     t0 = time.perf_counter()
     prepare = getattr(evaluate, "prepare", None)
     try:
-        run = _prepared(prepare, design, settings)[0] if prepare is not None else (
+        run = _prepared(prepare, design, settings) if prepare is not None else (
             lambda ph: evaluate(design, ph, settings))
         setup_error = None
     except Exception as exc:
