@@ -51,23 +51,40 @@ def main(argv: list[str] | None = None) -> int:
         print(f"middle_level: folder: expected a sweep folder holding results.sqlite, got {args.folder}",
               file=sys.stderr)
         return 2
-    size, cells = args.mesh.split(":")
+    try:
+        size, cells = float(args.mesh.split(":")[0]), int(args.mesh.split(":")[1])
+        if not (size > 0 and cells >= 1 and args.mesh.count(":") == 1):
+            raise ValueError
+    except (ValueError, IndexError):
+        print(f"middle_level: --mesh: expected SIZE:CELLS with SIZE > 0 mm and CELLS >= 1, got {args.mesh!r}",
+              file=sys.stderr)
+        return 2
+    if args.phantoms < 2:
+        print(f"middle_level: --phantoms: expected at least 2, got {args.phantoms}", file=sys.stderr)
+        return 2
     study = load_study(STUDY, ["multilevel.pilot=15", *args.set])
     fine = study.settings
     coarse = coarse_level_settings(fine, study.multilevel)
-    middle = dataclasses.replace(fine.mesh, size_mm=float(size), channel_cells=int(cells))
+    middle = dataclasses.replace(fine.mesh, size_mm=size, channel_cells=cells)
     by_key = {p.key: p for p in study.phantoms}
     con = sqlite3.connect(f"file:{store}?mode=ro", uri=True)
+    designs = []
+    for pair in args.designs:
+        try:
+            w, t = (float(x) for x in pair.split(","))
+            designs.append(((w, t), next(d for d in study.designs if d.width_mm == w and d.thickness_mm == t)))
+        except (ValueError, StopIteration):
+            print(f"middle_level: --designs: expected W,T pairs of the paper grid (w 0, 2-6; t 1-5 mm), got {pair!r}",
+                  file=sys.stderr)
+            return 2
     print("| design | mechanics nodes | n | var(F) | var(F - C) | var(F - M) | var(M - C) | M s per press |")
     print("|---|---|---|---|---|---|---|---|")
-    for pair in args.designs:
-        w, t = (float(x) for x in pair.split(","))
-        design = next(d for d in study.designs if d.width_mm == w and d.thickness_mm == t)
+    for (w, t), design in designs:
         f = _pairs(con, fine.key, design.content_hash())
         c = _pairs(con, coarse.key, design.content_hash())
         keys = sorted(k for k in f if k in c)[:args.phantoms]
         if len(keys) < 2:
-            print(f"middle_level: {pair}: fewer than 2 fine phantoms in {store}", file=sys.stderr)
+            print(f"middle_level: w = {w:g}, t = {t:g}: fewer than 2 fine phantoms in {store}", file=sys.stderr)
             return 2
         model = CoupledModel(design, fine.mesh, coarse.physics_settings, fine.cache_dir, middle)
         m, seconds = {}, []
