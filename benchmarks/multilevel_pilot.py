@@ -33,11 +33,13 @@ def _draw(rng, noise: float):
     return c, f
 
 
-def run_rule(c, f, pilot: int, se_factor: float, control: str = "fixed", share: float = 0.0):
+def run_rule(c, f, pilot: int, se_factor: float, control: str = "fixed", share: float = 0.0,
+             min_growth: float = 0.0):
     """The sweep's stopping rule from the pilot to its end on one map whose fine values ``f`` are all known: the
     take-all phantoms (``share`` of each touch count, :func:`~latticeopt.study.multilevel.take_all_mask` of ``c``)
     first, then the others in :func:`~latticeopt.study.multilevel.fine_order`. Returns ``(fine phantoms in all,
-    estimate)``; shared by the pilot, control and take-all benchmarks."""
+    estimate)``; shared by the pilot, control and take-all benchmarks. ``min_growth``: the rule's smallest step
+    as a share of the prefix."""
     whole = take_all_mask(c, STRATA, share)
     rest = np.flatnonzero(~whole)
     order = rest[fine_order(STRATA[rest])]
@@ -46,7 +48,7 @@ def run_rule(c, f, pilot: int, se_factor: float, control: str = "fixed", share: 
         fine = np.where(whole, f, np.nan)
         fine[order[:n]] = f[order[:n]]
         nxt = next_fine_count(c, fine, STRATA, n, pilot=pilot, se_factor=se_factor, control=control,
-                              take_all=whole, order=order)
+                              take_all=whole, order=order, min_growth=min_growth)
         if nxt == n:
             return n + int(whole.sum()), multilevel_estimate(c, fine, STRATA, whole, control=control)
         n = nxt
