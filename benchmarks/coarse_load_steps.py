@@ -1,14 +1,19 @@
-"""Longer load steps on a two-level sweep's coarse level: do they make the coarse pass cheaper?
+"""Longer load steps, or other Krylov settings, on a two-level sweep's coarse level: is the coarse pass cheaper?
 
 The coarse level (mechanics on a 4 mm grid with one cell across a channel, ``mechanics_rtol = 1e-2``, electrics
 on the fine mesh) presses every phantom of a map, and its mechanics is nearly all of its time. A press is
-applied in load steps of at most ``max_step_mm`` (1 mm); fewer, longer steps might save Newton iterations. For
-each design this presses the first 4 paper phantoms of every touch count and the 6 deepest with each
-``--steps`` value (a fresh solver per value, in this one process) and prints the Newton iterations, the
-factorizations, the Krylov iterations, the CPU seconds (steadier than wall time on a shared machine) and how far
-V_rel moved from the first value's.
+applied in load steps of at most ``max_step_mm`` (1 mm); fewer, longer steps might save Newton iterations. Its
+factorization costs about 10 back-substitutions (20 on the fine mesh), so the inexact Newton's knobs tuned on
+the fine mesh (``max_krylov``: back-substitutions before a refactorization; ``krylov_rtol``: the forcing term;
+``method = "newton"``: a factorization every iteration) may sit elsewhere for it. For each design this presses
+the first 4 paper phantoms of every touch count and the 6 deepest with each ``--steps`` value, then with each
+``--solver`` variant at the first step value (a fresh solver per row, in this one process, after one untimed
+press) and prints the Newton iterations, the factorizations, the Krylov iterations, the CPU seconds (steadier
+than wall time on a shared machine) and how far V_rel moved from the first row's.
 
     python benchmarks/coarse_load_steps.py --steps 1 2.5 5 --designs 4,3 2,1 6,5
+    python benchmarks/coarse_load_steps.py --steps 1 --solver max_krylov=8 method=newton \
+        krylov_rtol=0.3 --designs 4,3 2,1 0,3
 """
 
 from __future__ import annotations
@@ -27,6 +32,7 @@ from latticeopt import LatticeDesign  # noqa: E402
 from latticeopt.coupled import model_for_settings  # noqa: E402
 from latticeopt.errors import ConvergenceError  # noqa: E402
 from latticeopt.mechanics.indent import IndentationSolver  # noqa: E402
+from latticeopt.mechanics.settings import IndentSettings  # noqa: E402
 from latticeopt.study.config import load_study  # noqa: E402
 from latticeopt.study.settings import coarse_level_settings  # noqa: E402
 
@@ -38,27 +44,56 @@ def _phantoms(study) -> list[int]:
     return sorted(set(first) | set(deepest))
 
 
+def _variant(text: str) -> dict:
+    """``"max_krylov=8,krylov_rtol=0.3"`` -> the IndentSettings keys it changes (checked by IndentSettings)."""
+    out = {}
+    for item in text.split(","):
+        key, sep, value = item.partition("=")
+        try:
+            out[key] = _KNOBS[key](value) if sep else _KNOBS[""]
+        except (KeyError, ValueError):
+            raise argparse.ArgumentTypeError(
+                f"KEY=VALUE[,KEY=VALUE] with KEY one of max_krylov (integer), krylov_rtol (number), method, "
+                f"got {text!r}") from None
+    return out
+
+
+_KNOBS = {"max_krylov": int, "krylov_rtol": float, "method": str}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--steps", type=float, nargs="+", default=[1.0, 2.5, 5.0], help="max_step_mm values (mm)")
+    ap.add_argument("--solver", type=_variant, nargs="*", default=[],
+                    help="solver variants, each KEY=VALUE[,KEY=VALUE] (max_krylov, krylov_rtol, method), run at "
+                         "the first --steps value")
     ap.add_argument("--designs", nargs="+", default=["4,3", "2,1", "6,5"], help="WIDTH,THICKNESS pairs (mm)")
     args = ap.parse_args()
+    if any(s <= 0 for s in args.steps):
+        ap.error(f"--steps: step lengths > 0 mm, got {args.steps}")
+    try:
+        for v in args.solver:
+            dataclasses.replace(IndentSettings(), **v)
+    except ValueError as exc:
+        ap.error(f"--solver: {exc}")
     study = load_study("studies/paper_fig4.toml", ["multilevel.pilot=15"])
     level = coarse_level_settings(study.settings, study.multilevel)
     pick = _phantoms(study)
     print(f"{len(pick)} phantoms (first 4 per touch count and the 6 deepest, "
           f"{max(max(t.depth_mm for t in study.phantoms[i].touches) for i in pick):.2f} mm deepest)")
-    print("| w, t | max_step_mm | Newton | factorizations | Krylov iterations | CPU seconds | failed | "
+    print("| w, t | max_step_mm | solver | Newton | factorizations | Krylov iterations | CPU seconds | failed | "
           "V_rel change: median | max |")
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    rows_wanted = [(step, {}) for step in args.steps] + [(args.steps[0], v) for v in args.solver]
     for pair in args.designs:
         w, t = map(float, pair.split(","))
         model = model_for_settings(LatticeDesign(width_mm=w, thickness_mm=t), level)
         base = None
-        for step in args.steps:
-            # the same model with only the mechanics' load step changed
-            model.mechanics = IndentationSolver(model.mechanics_mesh,
-                                                dataclasses.replace(model.physics.indent_settings(), max_step_mm=step))
+        for step, knobs in rows_wanted:
+            # the same model with only the mechanics' load step or Krylov settings changed
+            model.mechanics = IndentationSolver(model.mechanics_mesh, dataclasses.replace(
+                model.physics.indent_settings(), max_step_mm=step, **knobs))
+            model.simulate(study.phantoms[pick[0]].touches)  # untimed: first-call costs off the first row
             rows = []
             for i in pick:
                 t0 = time.process_time()
@@ -73,7 +108,8 @@ def main() -> None:
             base = r if base is None else base
             rel = np.abs(r[:, 0] / base[:, 0] - 1)
             ops = " | ".join(f"{r[:, k].sum():.0f}" for k in (1, 2, 3))
-            print(f"| {w:g}, {t:g} | {step:g} | {ops} | {r[:, 4].sum():.1f} | "
+            label = ", ".join(f"{k} = {v}" for k, v in knobs.items()) or "default"
+            print(f"| {w:g}, {t:g} | {step:g} | {label} | {ops} | {r[:, 4].sum():.1f} | "
                   f"{int(np.isnan(r[:, 0]).sum())} | {np.nanmedian(rel):.1e} | {np.nanmax(rel):.1e} |", flush=True)
 
 
