@@ -1,6 +1,7 @@
 """How the pilot size of the two-level estimator sets its fine count, precision and coverage (Monte Carlo).
 
     python benchmarks/multilevel_pilot.py [--replicates 1500] [--pilots 6 9 15 30] [--seed 1]
+    python benchmarks/multilevel_pilot.py --pilots 15 --noise 0.15 0.3 --min-growth 0.25 0
 
 Synthetic maps shaped like the paper's: 300 phantoms, 100 per touch count, fine V_rel right-skewed (lognormal,
 coefficient of variation about 0.8, stratum means 0.03 / 0.06 / 0.09), coarse V_rel ``0.92 F + 0.002`` plus
@@ -10,6 +11,8 @@ paper designs show). Each replicate draws a new set of phantoms and runs the swe
 level and pilot: the fine count (median, mean), the root-mean-square error of the two-level mean over the
 standard deviation of the plain all-fine mean (the target is at most ``se_factor``), how often mean +- 2 SE
 covers the true mean (0.954 for a normal estimate with an exact SE), and the bias in units of the spread.
+``--noise`` sets the coarse noise levels (0.3: correlation about 0.85, 100-200 fine phantoms of 300);
+``--min-growth`` runs the rule with each smallest step (a share of the prefix) on the same maps.
 """
 
 from __future__ import annotations
@@ -59,6 +62,10 @@ def main(argv=None) -> int:
     ap.add_argument("--replicates", type=int, default=1500)
     ap.add_argument("--pilots", type=int, nargs="+", default=[6, 9, 15, 30])
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--noise", type=float, nargs="+", default=[0.05, 0.15],
+                    help="coarse noise, shares of the stratum mean (default 0.05 0.15)")
+    ap.add_argument("--min-growth", type=float, nargs="+", default=[0.0],
+                    help="the stopping rule's smallest step as a share of the prefix, 0..1 (default 0: the rule's)")
     a = ap.parse_args(argv)
     if a.replicates < 10:
         print(f"multilevel_pilot.py: error: --replicates: expected an integer >= 10, got {a.replicates}",
@@ -69,24 +76,32 @@ def main(argv=None) -> int:
         print(f"multilevel_pilot.py: error: --pilots: expected integers 2..{STRATA.size}, got {bad[0]}",
               file=sys.stderr)
         return 2
+    if not all(0 <= g <= 1 for g in a.min_growth) or not all(x >= 0 for x in a.noise):
+        print(f"multilevel_pilot.py: error: --min-growth: shares 0..1 and --noise: >= 0, got {a.min_growth} and "
+              f"{a.noise}", file=sys.stderr)
+        return 2
     rng = np.random.default_rng(a.seed)
     truth = float(MEANS.mean())
-    print("| coarse noise | pilot | fine n median / mean | RMS error / plain SD | coverage of +-2 SE | bias / SD |")
-    print("|---|---|---|---|---|---|")
-    for noise in (0.05, 0.15):
-        for pilot in a.pilots:
-            err, se, ns, plain = [], [], [], []
+    print("| coarse noise | pilot | min growth | fine n median / mean | RMS error / plain SD | coverage of +-2 SE | "
+          "bias / SD |")
+    print("|---|---|---|---|---|---|---|")
+    for noise in a.noise:
+        for pilot in a.pilots:  # each pilot on its own maps, every step on the same ones
+            res = {g: ([], [], []) for g in a.min_growth}
+            plain = []
             for _ in range(a.replicates):
                 c, f = _draw(rng, noise)
-                n, e = run_rule(c, f, pilot, 1.1)
-                err.append(e.mean - truth)
-                se.append(e.se)
-                ns.append(n)
                 plain.append(multilevel_estimate(c, f, STRATA).mean - truth)
-            err, se, plain = np.array(err), np.array(se), np.array(plain)
-            print(f"| {noise:.0%} | {pilot} | {np.median(ns):.0f} / {np.mean(ns):.0f} | "
-                  f"{np.sqrt(np.mean(err ** 2)) / plain.std():.3f} | {np.mean(np.abs(err) <= 2 * se):.3f} | "
-                  f"{err.mean() / err.std():+.3f} |", flush=True)
+                for growth in a.min_growth:
+                    n, e = run_rule(c, f, pilot, 1.1, min_growth=growth)
+                    for lst, v in zip(res[growth], (e.mean - truth, e.se, n)):
+                        lst.append(v)
+            plain = np.array(plain)
+            for growth in a.min_growth:
+                err, se, ns = (np.array(v) for v in res[growth])
+                print(f"| {noise:.0%} | {pilot} | {growth:g} | {np.median(ns):.0f} / {np.mean(ns):.0f} | "
+                      f"{np.sqrt(np.mean(err ** 2)) / plain.std():.3f} | {np.mean(np.abs(err) <= 2 * se):.3f} | "
+                      f"{err.mean() / err.std():+.3f} |", flush=True)
     return 0
 
 
