@@ -41,9 +41,8 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "docs"))
-from paper_map_paired import read_map  # noqa: E402
+from paper_map_paired import finished_map  # noqa: E402
 
-from latticeopt.errors import ModelBugError  # noqa: E402
 from latticeopt.study.multilevel import multilevel_estimate, predicted_fine_count  # noqa: E402
 
 
@@ -117,22 +116,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--rates", type=float, nargs="+", default=[1.5, 2.0, 3.0],
                     help="how many times as often a common order samples deep phantoms (default 1.5 2 3)")
     args = ap.parse_args(argv)
-    if not (args.folder / "results.sqlite").is_file():
-        print(f"multilevel_strata: folder: expected a sweep folder holding results.sqlite, got {args.folder}",
-              file=sys.stderr)
-        return 2
     if not args.depth_mm > 0 or not all(r > 0 for r in args.rates):
         print(f"multilevel_strata: --depth-mm and --rates: numbers > 0, got {args.depth_mm} and {args.rates}",
               file=sys.stderr)
         return 2
-    try:
-        study, run = read_map(args.folder, args.set)
-    except ModelBugError as exc:
-        if "_WouldCompute" not in str(exc):
-            raise
-        print(f"multilevel_strata: {args.folder}: the map is not finished with these settings (it would compute "
-              f"more); finish it with its sweep command first", file=sys.stderr)
+    loaded = finished_map("multilevel_strata", args.folder, args.set)
+    if loaded is None:
         return 2
+    study, run = loaded
     ml = study.multilevel
     used = list(run.used)
     deep = np.array([max(t.depth_mm for t in study.phantoms[j].touches) > args.depth_mm for j in used])

@@ -54,23 +54,31 @@ def read_map(folder: Path, overrides: list[str]):
     return study, res.multilevel
 
 
+def finished_map(prog: str, folder: Path, overrides: list[str]):
+    """:func:`read_map`, or ``None`` after a one-line message on stderr naming ``prog`` when ``folder`` holds no
+    store or the map there is unfinished with these settings (a script then exits with status 2)."""
+    if not (folder / "results.sqlite").is_file():
+        print(f"{prog}: folder: expected a sweep folder holding results.sqlite, got {folder}", file=sys.stderr)
+        return None
+    try:
+        return read_map(folder, overrides)
+    except ModelBugError as exc:
+        if "_WouldCompute" not in str(exc):
+            raise
+        print(f"{prog}: {folder}: the map is not finished with these settings (it would compute more); finish "
+              f"it with its sweep command first", file=sys.stderr)
+        return None
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("folder", type=Path, help="the map's output folder (holding results.sqlite)")
     ap.add_argument("--set", action="append", default=[], help="a study override the map ran with (key=value)")
     args = ap.parse_args(argv)
-    if not (args.folder / "results.sqlite").is_file():
-        print(f"paper_map_paired: folder: expected a sweep folder holding results.sqlite, got {args.folder}",
-              file=sys.stderr)
+    loaded = finished_map("paper_map_paired", args.folder, args.set)
+    if loaded is None:
         return 2
-    try:
-        study, run = read_map(args.folder, args.set)
-    except ModelBugError as exc:
-        if "_WouldCompute" not in str(exc):
-            raise
-        print(f"paper_map_paired: {args.folder}: the map is not finished with these settings (it would compute "
-              f"more); finish it with its sweep command first", file=sys.stderr)
-        return 2
+    study, run = loaded
     idx = {(d.width_mm, d.thickness_mm): i for i, d in enumerate(study.designs)}
     est = {k: run.estimates[i] for k, i in idx.items()}
 
