@@ -336,11 +336,10 @@ def next_fine_count(coarse, fine, strata, n: int, *, pilot: int, se_factor: floa
     order : array_like of int, optional
         Positions of the other phantoms in the order they get the fine level; default :func:`fine_order` of
         their strata.
-
     min_growth : float
         The smallest step as a share of ``n``, in ``[0, 1]``. 0 (default) steps to the predicted count however
-        close it is; a step of at least a quarter (0.25, the former rule) ran 10 % more sampled fine phantoms on
-        the paper map for the same criterion (``benchmarks/multilevel_take_all.py --min-growth`` compares them).
+        close it is; steps of at least a quarter (0.25) ran 12 % more sampled fine phantoms on the paper map for
+        the same criterion (``benchmarks/multilevel_pilot.py --min-growth`` compares them on synthetic maps).
 
     Returns
     -------
