@@ -214,10 +214,10 @@ def test_a_small_pilot_keeps_precision_and_coverage_on_right_skewed_values():
 
 
 def test_stepping_to_the_predicted_count_needs_fewer_phantoms_for_the_same_precision():
-    # the rule steps to the count the variances predict; a minimum step of a quarter of the prefix (the former
-    # rule) overshoots it. On maps whose coarse level follows the fine one loosely (counts of 60-200 of 300) the
-    # predicted steps stop earlier on average while the error stays within se_factor of the plain all-fine
-    # mean's and the coverage of +-2 SE holds (benchmarks/multilevel_take_all.py --min-growth 0.25 0)
+    # the rule steps to the count the variances predict; a minimum step of a quarter of the prefix overshoots
+    # it. On maps whose coarse level follows the fine one loosely (counts of 60-200 of 300) the predicted steps
+    # stop earlier on average while the error stays within se_factor of the plain all-fine mean's and the
+    # coverage of +-2 SE holds (benchmarks/multilevel_pilot.py --noise 0.3 --min-growth 0.25 0)
     rng = np.random.default_rng(29)
     strata = np.repeat([1, 2, 3], 100)
     base = np.array([0.03, 0.06, 0.09])[strata - 1]
@@ -228,14 +228,14 @@ def test_stepping_to_the_predicted_count_needs_fewer_phantoms_for_the_same_preci
         c = 0.92 * f + 0.002 + 0.3 * base * rng.standard_normal(strata.size)
         plain.append(multilevel_estimate(c, f, strata).mean - 0.06)
         for growth, ns in counts.items():
-            n, steps = 0, 0
+            n = 0
             while True:
                 fine = _prefix(f, strata, n)
                 nxt = next_fine_count(c, fine, strata, n, pilot=15, se_factor=1.1, min_growth=growth)
                 if nxt == n:
                     break
                 assert nxt >= n + max(1, math.floor(growth * n)) or nxt == strata.size
-                n, steps = nxt, steps + 1
+                n = nxt
             ns.append(n)
             if growth == 0.0:
                 e = multilevel_estimate(c, fine, strata)
