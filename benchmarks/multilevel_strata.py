@@ -62,8 +62,8 @@ def plan_count(c, f, touches, sampling, take_all, se_factor: float, weight=None)
     se_factor : float
         The criterion's ratio to the plain SE.
     weight : callable or str, optional
-        Sampling rate of a stratum relative to the others: ``weight(label, var_h)``; ``None`` samples in
-        proportion to the strata's sizes, ``"neyman"`` in proportion to ``M_h sd_h``.
+        Sampling rate of a stratum relative to the others, ``weight(label)``; ``None`` samples in proportion to
+        the strata's sizes, ``"neyman"`` in proportion to ``M_h sd_h``.
 
     Returns
     -------
