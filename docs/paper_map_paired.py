@@ -2,10 +2,11 @@
 
 The map's ``report.txt`` ranks the designs and pairs the best with the runner-up; the results page also compares
 other pairs (the best against each design, the paper's optimum against w = 6 and the uniform layer, thicknesses
-at each width). This prints the table of means (fine counts in brackets, as the page gives it) and those paired
-two-level differences (:func:`latticeopt.study.multilevel_report.paired_difference`: coarse over every phantom,
-fine over the phantoms both designs ran), computing nothing: it reads a copy of the store, and stops with a
-message if the map would need another evaluation (unfinished, or run with other settings)::
+at each width, widths at each thickness). This prints the table of means (fine counts in brackets, as the page
+gives it) and those paired two-level differences
+(:func:`latticeopt.study.multilevel_report.paired_difference`: coarse over every phantom, fine over the phantoms
+both designs ran), computing nothing: it reads a copy of the store, and stops with a message if the map would
+need another evaluation (unfinished, or run with other settings)::
 
     python docs/paper_map_paired.py runs/paper_fig4_takeall
     python docs/paper_map_paired.py runs/paper_fig4_rim_takeall --set design.rim=channel
@@ -103,6 +104,10 @@ def main(argv: list[str] | None = None) -> int:
     print("\nthicknesses at each width:")
     for w in WIDTHS:
         print("  " + "; ".join(diff((w, a), (w, b)) for a, b in ((3, 5), (3, 1), (1, 5))))
+    print("\nwidths at each thickness: the most responsive lattice minus each other width and the uniform layer:")
+    for t in THICKNESSES:
+        top = max(WIDTHS[1:], key=lambda w: est[(w, t)].mean)
+        print("  " + "; ".join(diff((top, t), (w, t)) for w in WIDTHS if w != top))
     print("\nlattice / uniform layer of the same thickness, and the fall from w = 2 to w = 6:")
     for t in THICKNESSES:
         ratios = ", ".join(f"{est[(w, t)].mean / est[(0, t)].mean:.2f}" for w in WIDTHS[1:])
