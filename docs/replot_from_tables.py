@@ -65,7 +65,7 @@ def layouts(text: str) -> None:
 def main() -> None:
     text = (DOCS / "results.md").read_text()
     paper_map(text, "### The paper map: 30 designs", [], 300, "paper_fig4")
-    paper_map(text, "### The paper map with the rim channel", ["design.rim=channel"], 292, "paper_fig4_rim")
+    paper_map(text, "### The paper map with the rim channel", ["design.rim=channel"], 300, "paper_fig4_rim")
     layouts(text)
 
 
