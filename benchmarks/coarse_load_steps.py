@@ -50,7 +50,9 @@ def _variant(text: str) -> dict:
     for item in text.split(","):
         key, sep, value = item.partition("=")
         try:
-            out[key] = _KNOBS[key](value) if sep else _KNOBS[""]
+            if not sep:
+                raise ValueError(item)
+            out[key] = _KNOBS[key](value)
         except (KeyError, ValueError):
             raise argparse.ArgumentTypeError(
                 f"KEY=VALUE[,KEY=VALUE] with KEY one of max_krylov (integer), krylov_rtol (number), method, "

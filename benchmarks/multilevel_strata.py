@@ -97,14 +97,16 @@ def plan_count(c, f, touches, sampling, take_all, se_factor: float, weight=None)
     return min(m, rest.sum()), dict(zip(labels.tolist(), pi))
 
 
-def first_meeting(c, f, touches, take_all, order, start: int, se_factor: float) -> int | None:
-    """Shortest prefix of ``order`` (at least ``start``) meeting the criterion with the map's fine values."""
-    for n in range(start, int(np.isfinite(f[order]).sum()) + 1):
+def first_meeting(c, f, touches, take_all, order, start: int, se_factor: float) -> int:
+    """Shortest prefix of ``order`` (at least ``start``) meeting the criterion with the map's fine values; the
+    whole prefix the map ran if none shorter does."""
+    ran = int(np.isfinite(f[order]).sum())
+    for n in range(start, ran):
         sub = np.where(take_all, f, np.nan)
         sub[order[:n]] = f[order[:n]]
         if multilevel_estimate(c, sub, touches, take_all=take_all).meets(se_factor):
             return n
-    return None
+    return ran
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -126,11 +128,12 @@ def main(argv: list[str] | None = None) -> int:
     study, run = loaded
     ml = study.multilevel
     used = list(run.used)
-    deep = np.array([max(t.depth_mm for t in study.phantoms[j].touches) > args.depth_mm for j in used])
+    is_deep = [max(t.depth_mm for t in p.touches) > args.depth_mm for p in study.phantoms]
+    deep = np.array([is_deep[j] for j in used])
     secs = {True: [], False: []}
     for (_, j), e in run.fine.items():
         if e.status == "ok" and "total" in e.timings:
-            secs[bool(max(t.depth_mm for t in study.phantoms[j].touches) > args.depth_mm)].append(e.timings["total"])
+            secs[is_deep[j]].append(e.timings["total"])
     cost = {k: float(np.mean(v)) for k, v in secs.items()}
     order_pos = {j: k for k, j in enumerate(used)}
     order = np.array([order_pos[j] for j in run.order[len(run.take_all):]])
@@ -152,7 +155,7 @@ def main(argv: list[str] | None = None) -> int:
         if not math.isclose(plan_count(c, f, touches, touches, take_all, ml.se_factor)[0], rule, rel_tol=1e-9):
             raise AssertionError(f"proportional over touch counts != the map's rule {rule}")
         first = first_meeting(c, f, touches, take_all, order, ml.pilot, ml.se_factor)
-        plans_m = [(ran, natural), (rule, natural), (first if first is not None else ran, natural), (prop, natural)]
+        plans_m = [(ran, natural), (rule, natural), (first, natural), (prop, natural)]
         for weight in ["neyman", *[lambda h, r=r: r if h % 2 else 1.0 for r in args.rates]]:
             m, fr = plan_count(c, f, touches, lab, take_all, ml.se_factor, weight)
             plans_m.append((m, sum(v for h, v in fr.items() if h % 2)))
@@ -164,7 +167,7 @@ def main(argv: list[str] | None = None) -> int:
                          + take_all.sum() * cost[True]) / 3600
         d = study.designs[i]
         print(f"| w = {d.width_mm:g}, t = {d.thickness_mm:g} | {ran} | "
-              + " | ".join("-" if m is None else f"{m:.0f}" for m in counts) + " |")
+              + " | ".join(f"{m:.0f}" for m in counts) + " |")
     print("| fine evaluations (pilot at least, plus take-all) | " + " | ".join(f"{v:.0f}" for v in evals) + " |")
     print("| fine worker hours, priced by depth | " + " | ".join(f"{v:.2f}" for v in hours) + " |")
     return 0

@@ -101,13 +101,15 @@ def test_all_fine_gives_exactly_the_plain_fine_mean_and_se():
     assert one.se == pytest.approx(np.std(f, ddof=1) / math.sqrt(120), rel=1e-12)
 
 
-def _adaptive(c, f, strata, pilot, factor):
+def _adaptive(c, f, strata, pilot, factor, min_growth=0.0):
     n, steps = 0, 0
     while True:
-        nxt = next_fine_count(c, _prefix(f, strata, n), strata, n, pilot=pilot, se_factor=factor)
+        nxt = next_fine_count(c, _prefix(f, strata, n), strata, n, pilot=pilot, se_factor=factor,
+                              min_growth=min_growth)
         if nxt == n:
             return n, multilevel_estimate(c, _prefix(f, strata, n), strata), steps
         assert nxt > n
+        assert nxt >= n + max(1, math.floor(min_growth * n)) or nxt == strata.size
         n, steps = nxt, steps + 1
 
 
@@ -228,17 +230,9 @@ def test_stepping_to_the_predicted_count_needs_fewer_phantoms_for_the_same_preci
         c = 0.92 * f + 0.002 + 0.3 * base * rng.standard_normal(strata.size)
         plain.append(multilevel_estimate(c, f, strata).mean - 0.06)
         for growth, ns in counts.items():
-            n = 0
-            while True:
-                fine = _prefix(f, strata, n)
-                nxt = next_fine_count(c, fine, strata, n, pilot=15, se_factor=1.1, min_growth=growth)
-                if nxt == n:
-                    break
-                assert nxt >= n + max(1, math.floor(growth * n)) or nxt == strata.size
-                n = nxt
+            n, e, _ = _adaptive(c, f, strata, pilot=15, factor=1.1, min_growth=growth)
             ns.append(n)
             if growth == 0.0:
-                e = multilevel_estimate(c, fine, strata)
                 assert e.meets(1.1) or n == strata.size
                 errors.append(e.mean - 0.06)
                 covered.append(abs(e.mean - 0.06) <= 2 * e.se)
@@ -246,7 +240,7 @@ def test_stepping_to_the_predicted_count_needs_fewer_phantoms_for_the_same_preci
     assert math.sqrt(np.mean(np.square(errors))) < 1.15 * np.std(plain)
     assert np.mean(covered) > 0.92
     with pytest.raises(ValueError, match="min_growth"):
-        next_fine_count(c, fine, strata, 30, pilot=15, se_factor=1.1, min_growth=-0.1)
+        next_fine_count(c, _prefix(f, strata, 30), strata, 30, pilot=15, se_factor=1.1, min_growth=-0.1)
 
 
 # -- the control-variate coefficient (control = "fixed" / "fitted") ------------------------------------------
