@@ -71,7 +71,7 @@ def main() -> None:
                          "the first --steps value")
     ap.add_argument("--designs", nargs="+", default=["4,3", "2,1", "6,5"], help="WIDTH,THICKNESS pairs (mm)")
     args = ap.parse_args()
-    if any(s <= 0 for s in args.steps):
+    if not all(s > 0 for s in args.steps):  # NaN too
         ap.error(f"--steps: step lengths > 0 mm, got {args.steps}")
     try:
         for v in args.solver:
