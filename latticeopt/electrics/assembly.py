@@ -34,6 +34,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from ..errors import MeshError
+from ..mesh.p1 import hat_gradients
 
 #: Local index pairs of a tet's 4 x 4 element matrix, row-major.
 _I4, _J4 = (a.ravel() for a in np.meshgrid(np.arange(4), np.arange(4), indexing="ij"))
@@ -64,18 +65,12 @@ def element_geometry(nodes_m: np.ndarray, tets: np.ndarray) -> tuple[np.ndarray,
     MeshError
         If a tet is inverted or flat (a deformation folded the mesh).
     """
-    X = nodes_m[tets]
-    D = X[:, 1:] - X[:, :1]  # edge vectors as rows
-    vol = np.linalg.det(D) / 6.0
+    grads, vol = hat_gradients(nodes_m, tets)
     scale = np.abs(vol).max() if len(vol) else 1.0
     bad = vol <= 1e-12 * scale
     if np.any(bad):
         raise MeshError(f"{int(bad.sum())} hydrogel tets are inverted or flat (smallest volume "
                         f"{vol.min() * 1e9:.3g} mm^3); the mesh or its deformation is unusable")
-    grads = np.empty((len(tets), 4, 3))
-    # x - x0 = D^T xi, so grad xi_i = column i of D^-1.
-    grads[:, 1:] = np.linalg.inv(D).transpose(0, 2, 1)
-    grads[:, 0] = -grads[:, 1:].sum(axis=1)
     return grads, vol
 
 

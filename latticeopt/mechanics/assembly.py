@@ -35,6 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..mesh.p1 import hat_gradients
 from ..mesh.tetmesh import TetMesh
 from ._kernels import kinematics, patch_tangents, tet_forces
 from .materials import Materials
@@ -54,12 +55,7 @@ def reference_gradients(nodes: np.ndarray, tets: np.ndarray) -> tuple[np.ndarray
     vol : ndarray, shape (M,)
         Signed tet volumes (mm^3).
     """
-    x = nodes[tets]
-    D = (x[:, 1:] - x[:, :1]).transpose(0, 2, 1)  # columns are edge vectors
-    Dinv = np.linalg.inv(D)  # rows: gradients of N1..N3
-    grad = np.concatenate([-Dinv.sum(axis=1, keepdims=True), Dinv], axis=1)
-    vol = np.linalg.det(D) / 6.0
-    return grad, vol
+    return hat_gradients(nodes, tets)
 
 
 def dilatation_patches(mesh: TetMesh, volumetric: str = "patch") -> np.ndarray:
