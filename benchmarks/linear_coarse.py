@@ -27,8 +27,7 @@ for _v in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
     os.environ.setdefault(_v, "1")
 
 import numpy as np  # noqa: E402
-
-STUDY = Path(__file__).resolve().parent.parent / "studies" / "paper_fig4.toml"
+from middle_level import STUDY, _pairs, sweep_store  # noqa: E402  (this folder's neighbour)
 
 
 def _linear_press(solver, touches) -> np.ndarray:
@@ -61,10 +60,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("folder", type=Path, help="a finished two-level paper map's folder (holding results.sqlite)")
     ap.add_argument("--designs", nargs="+", default=["4,3", "2,1", "0,3", "6,3", "4,1"], help="W,T pairs (mm)")
     args = ap.parse_args(argv)
-    store = args.folder / "results.sqlite"
-    if not store.is_file():
-        print(f"linear_coarse: folder: expected a sweep folder holding results.sqlite, got {args.folder}",
-              file=sys.stderr)
+    store = sweep_store("linear_coarse", args.folder)
+    if store is None:
         return 2
     from latticeopt.coupled import CoupledModel
     from latticeopt.errors import MeshError
@@ -86,16 +83,11 @@ def main(argv: list[str] | None = None) -> int:
             return 2
     by_key = {p.key: p for p in study.phantoms}
     con = sqlite3.connect(f"file:{store}?mode=ro", uri=True)
-
-    def values(settings_key, design_key):
-        return dict(con.execute("SELECT phantom_key, v_rel FROM evaluations WHERE settings_key = ? AND design_key = ? "
-                                "AND status = 'ok'", (settings_key, design_key)).fetchall())
-
     print("| design | fine phantoms | linear folded | r coarse | r linear | r linear, fitted beta | beta | "
           "linear s per press | mean F | mean C | mean L |")
     print("|---|---|---|---|---|---|---|---|---|---|---|")
     for design in designs:
-        f, c = values(fine.key, design.content_hash()), values(coarse.key, design.content_hash())
+        f, c = _pairs(con, fine.key, design.content_hash()), _pairs(con, coarse.key, design.content_hash())
         keys = sorted(k for k in f if k in c)
         if len(keys) < 6:
             print(f"linear_coarse: {design.width_mm:g},{design.thickness_mm:g}: fewer than 6 fine phantoms in {store}",

@@ -32,6 +32,15 @@ from latticeopt.study.settings import coarse_level_settings  # noqa: E402
 STUDY = Path(__file__).resolve().parent.parent / "studies" / "paper_fig4.toml"
 
 
+def sweep_store(prog: str, folder: Path) -> Path | None:
+    """``folder``'s results store, or None after a one-line message on stderr naming ``prog`` (exit status 2)."""
+    store = folder / "results.sqlite"
+    if store.is_file():
+        return store
+    print(f"{prog}: folder: expected a sweep folder holding results.sqlite, got {folder}", file=sys.stderr)
+    return None
+
+
 def _pairs(con, settings_key: str, design_key: str) -> dict[str, float]:
     rows = con.execute("SELECT phantom_key, v_rel FROM evaluations WHERE settings_key = ? AND design_key = ? "
                        "AND status = 'ok'", (settings_key, design_key)).fetchall()
@@ -46,10 +55,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--phantoms", type=int, default=30, help="fine phantoms per design to press (default 30)")
     ap.add_argument("--set", action="append", default=[], help="study override the map ran with (key=value)")
     args = ap.parse_args(argv)
-    store = args.folder / "results.sqlite"
-    if not store.is_file():
-        print(f"middle_level: folder: expected a sweep folder holding results.sqlite, got {args.folder}",
-              file=sys.stderr)
+    store = sweep_store("middle_level", args.folder)
+    if store is None:
         return 2
     try:
         size, cells = float(args.mesh.split(":")[0]), int(args.mesh.split(":")[1])
