@@ -45,19 +45,6 @@ log = logging.getLogger(__name__)
 VOLUMETRIC = ("patch", "element")
 
 
-def reference_gradients(nodes: np.ndarray, tets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """P1 shape-function gradients and volumes.
-
-    Returns
-    -------
-    grad : ndarray, shape (M, 4, 3)
-        ``grad[e, a]`` is the (constant) gradient of the hat function of local node ``a`` (1/mm).
-    vol : ndarray, shape (M,)
-        Signed tet volumes (mm^3).
-    """
-    return hat_gradients(nodes, tets)
-
-
 def dilatation_patches(mesh: TetMesh, volumetric: str = "patch") -> np.ndarray:
     """Patch index of every tet, shape ``(M,)``, numbered ``0 .. P-1``; patches never mix regions.
 
@@ -148,7 +135,7 @@ class NeoHookeanOperator:
         self.order = np.argsort(patch, kind="stable")
         self.patch = patch[self.order]
         self.tets = mesh.tets[self.order]
-        self.grad, self.vol = reference_gradients(mesh.nodes_mm, self.tets)
+        self.grad, self.vol = hat_gradients(mesh.nodes_mm, self.tets)  # 1/mm, mm^3
         if np.any(self.vol <= 0):
             raise ValueError("mesh: every tet must be positively oriented with positive volume")
         mu, self._kappa_tet = materials.moduli_MPa(mesh.region[self.order])
@@ -171,7 +158,7 @@ class NeoHookeanOperator:
 
     def with_reference(self, nodes_mm: np.ndarray) -> NeoHookeanOperator:
         """The same operator (pattern, maps, materials shared) on moved reference nodes, same topology."""
-        grad, vol = reference_gradients(np.asarray(nodes_mm, dtype=float), self.tets)
+        grad, vol = hat_gradients(nodes_mm, self.tets)
         if np.any(vol <= 0):
             raise ValueError("nodes_mm: every tet must keep a positive volume")
         other = copy.copy(self)
