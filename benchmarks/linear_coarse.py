@@ -27,7 +27,7 @@ for _v in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
     os.environ.setdefault(_v, "1")
 
 import numpy as np  # noqa: E402
-from middle_level import STUDY, _pairs, sweep_store  # noqa: E402  (this folder's neighbour)
+from middle_level import STUDY, _pairs, paper_designs, sweep_store  # noqa: E402  (this folder's neighbour)
 
 
 def _linear_press(solver, touches) -> np.ndarray:
@@ -72,15 +72,9 @@ def main(argv: list[str] | None = None) -> int:
     study = load_study(STUDY, ["multilevel.pilot=15"])
     fine = study.settings
     coarse = coarse_level_settings(fine, study.multilevel)
-    designs = []
-    for pair in args.designs:
-        try:
-            w, t = (float(x) for x in pair.split(","))
-            designs.append(next(d for d in study.designs if d.width_mm == w and d.thickness_mm == t))
-        except (ValueError, StopIteration):
-            print(f"linear_coarse: --designs: expected W,T pairs of the paper grid (w 0, 2-6; t 1-5 mm), got {pair!r}",
-                  file=sys.stderr)
-            return 2
+    designs = paper_designs("linear_coarse", study, args.designs)
+    if designs is None:
+        return 2
     by_key = {p.key: p for p in study.phantoms}
     con = sqlite3.connect(f"file:{store}?mode=ro", uri=True)
     print("| design | fine phantoms | linear folded | r coarse | r linear | r linear, fitted beta | beta | "

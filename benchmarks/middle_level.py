@@ -41,6 +41,21 @@ def sweep_store(prog: str, folder: Path) -> Path | None:
     return None
 
 
+def paper_designs(prog: str, study, pairs: list[str]) -> list | None:
+    """The study's designs named by ``"W,T"`` pairs (mm), or None after a one-line message on stderr naming
+    ``prog`` for a pair that is not on the paper grid (exit status 2)."""
+    designs = []
+    for pair in pairs:
+        try:
+            w, t = (float(x) for x in pair.split(","))
+            designs.append(next(d for d in study.designs if d.width_mm == w and d.thickness_mm == t))
+        except (ValueError, StopIteration):
+            print(f"{prog}: --designs: expected W,T pairs of the paper grid (w 0, 2-6; t 1-5 mm), got {pair!r}",
+                  file=sys.stderr)
+            return None
+    return designs
+
+
 def _pairs(con, settings_key: str, design_key: str) -> dict[str, float]:
     rows = con.execute("SELECT phantom_key, v_rel FROM evaluations WHERE settings_key = ? AND design_key = ? "
                        "AND status = 'ok'", (settings_key, design_key)).fetchall()
@@ -75,18 +90,13 @@ def main(argv: list[str] | None = None) -> int:
     middle = dataclasses.replace(fine.mesh, size_mm=size, channel_cells=cells)
     by_key = {p.key: p for p in study.phantoms}
     con = sqlite3.connect(f"file:{store}?mode=ro", uri=True)
-    designs = []
-    for pair in args.designs:
-        try:
-            w, t = (float(x) for x in pair.split(","))
-            designs.append(((w, t), next(d for d in study.designs if d.width_mm == w and d.thickness_mm == t)))
-        except (ValueError, StopIteration):
-            print(f"middle_level: --designs: expected W,T pairs of the paper grid (w 0, 2-6; t 1-5 mm), got {pair!r}",
-                  file=sys.stderr)
-            return 2
+    designs = paper_designs("middle_level", study, args.designs)
+    if designs is None:
+        return 2
     print("| design | mechanics nodes | n | var(F) | var(F - C) | var(F - M) | var(M - C) | M s per press |")
     print("|---|---|---|---|---|---|---|---|")
-    for (w, t), design in designs:
+    for design in designs:
+        w, t = design.width_mm, design.thickness_mm
         f = _pairs(con, fine.key, design.content_hash())
         c = _pairs(con, coarse.key, design.content_hash())
         keys = sorted(k for k in f if k in c)[:args.phantoms]
