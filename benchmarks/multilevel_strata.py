@@ -16,7 +16,8 @@ the sampled fine count ``m`` each plan needs:
 * ``rule``: the map's own prediction (:func:`~latticeopt.study.multilevel.predicted_fine_count`, proportional
   over touch counts); ``first``: the shortest prefix of the map's order that meets the criterion on the map's
   values (what a rule with perfect steps would have stopped at; optimistic, as the criterion fluctuates);
-* ``x depth``: touch count x deep (deepest touch beyond ``--depth-mm``), proportional;
+* ``x depth``: touch count x deep (deepest touch beyond ``--depth-mm``), proportional (what the sweep now does by
+  default, ``multilevel.depth_split_mm``; the maps quoted were run without it, hence their ``--set``);
 * ``Neyman``: the same strata, ``m_h`` proportional to ``u_h sd_h`` with the spreads measured on the map's own
   pairs (a bound: a rule would have to estimate them, and one order common to all designs cannot suit each);
 * ``deep x r``: one order for every design that samples deep phantoms ``r`` times as often as shallow ones.
@@ -27,8 +28,10 @@ the sampled fine count ``m`` each plan needs:
 each evaluation at the map's own mean model seconds of a deep and of a shallow fine phantom (a deep press takes
 longer, which eats what sampling deep presses more often saves)::
 
-    PYTHONPATH=. python benchmarks/multilevel_strata.py runs/paper_fig4_takeall [--depth-mm 4] [--rates 1.5 2 3]
-    PYTHONPATH=. python benchmarks/multilevel_strata.py runs/paper_fig4_rim_takeall --set design.rim=channel
+    PYTHONPATH=. python benchmarks/multilevel_strata.py runs/paper_fig4_takeall --set multilevel.depth_split_mm=0 \
+        [--depth-mm 4] [--rates 1.5 2 3]
+    PYTHONPATH=. python benchmarks/multilevel_strata.py runs/paper_fig4_rim_takeall --set design.rim=channel \
+        --set multilevel.depth_split_mm=0
 """
 
 from __future__ import annotations

@@ -100,7 +100,7 @@ def main(argv=None) -> int:
             print(f"w = {d.width_mm:g}, t = {d.thickness_mm:g}: no coarse phantom solved, nothing to compare")
             continue
         ref = multilevel_estimate(c[ok], f_all[ok], strata[ok])  # n = N: the plain fine mean and its SE
-        diff, own = gap_to_plain(c[ok], f_all[ok], strata[ok], in_subset[ok], whole[ok])
+        diff, own = gap_to_plain(c[ok], f_all[ok], strata[ok], in_subset[ok], whole[ok], run.parts()[ok])
         sec_two = sum(run.coarse[i * len(study.phantoms) + j].seconds or 0.0 for j in used) + sum(
             run.fine[(i, j)].seconds or 0.0 for j in run.order[:run.n_fine[i]])
         sec_plain = sum(plain[g * nu + k].seconds or 0.0 for k in range(nu))

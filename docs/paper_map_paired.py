@@ -8,8 +8,9 @@ gives it) and those paired two-level differences
 both designs ran), computing nothing: it reads a copy of the store, and stops with a message if the map would
 need another evaluation (unfinished, or run with other settings)::
 
-    python docs/paper_map_paired.py runs/paper_fig4_takeall
-    python docs/paper_map_paired.py runs/paper_fig4_rim_takeall --set design.rim=channel
+    python docs/paper_map_paired.py runs/paper_fig4_takeall --set multilevel.depth_split_mm=0
+    python docs/paper_map_paired.py runs/paper_fig4_rim_takeall --set design.rim=channel \
+        --set multilevel.depth_split_mm=0
 """
 
 from __future__ import annotations

@@ -168,6 +168,42 @@ def test_take_all_phantoms_come_first_for_every_design_and_enter_the_estimate(tm
         assert ml.estimates[i] != multilevel_estimate(coarse[i], f, strata)  # the parts change the estimate
 
 
+def test_depth_parts_split_the_sampled_phantoms_and_enter_the_estimate(tmp_path, monkeypatch):
+    """multilevel.depth_split_mm: each touch count's sampled phantoms (not take-all) are shallow or deep by their
+    deepest touch; the order interleaves both in proportion and the estimate takes each as a part of its own."""
+    monkeypatch.setenv(LOG_ENV, str(tmp_path / "calls.log"))
+    path = tmp_path / "study.toml"
+    path.write_text(STUDY.format(out=(tmp_path / "out").as_posix(), pilot=6, factor=1.1, take_all=0.1)
+                    .replace("counts = { 1 = 12, 2 = 12, 3 = 12 }", "counts = { 1 = 30, 2 = 30, 3 = 30 }"))
+    deepest = np.array([max(t.depth_mm for t in p.touches) for p in load_study(path).phantoms])
+    split = float(np.median(deepest))
+    study = load_study(path, [f"multilevel.depth_split_mm={split}"])
+    res = run_sweep(study, fake_two_level, progress=False)
+    ml = res.multilevel
+    strata = np.array([p.n_touches for p in study.phantoms])
+    tail = np.isin(np.arange(strata.size), list(ml.take_all))
+    want = {j for j in range(strata.size) if deepest[j] > split and not tail[j]
+            and min(np.sum((strata == strata[j]) & ~tail & (deepest > split)),
+                    np.sum((strata == strata[j]) & ~tail & (deepest <= split))) >= 10}
+    assert want and set(ml.deep) == want
+    assert f"shallow and deep parts, {len(want)} deeper than {split:g} mm" in (res.out_dir / "report.txt").read_text()
+    sampled = list(ml.order[len(ml.take_all):])
+    for n in (6, 20, 40):  # every prefix holds each touch count's deep share within a phantom or two
+        for k in (1, 2, 3):
+            cell = [j for j in sampled if strata[j] == k]
+            share = np.mean([j in want for j in cell])
+            got = sum(j in want for j in sampled[:n] if strata[j] == k)
+            assert abs(got - share * sum(strata[j] == k for j in sampled[:n])) <= 1.5
+    coarse = np.array([[_value(d, p, 4.0) for p in study.phantoms] for d in study.designs])
+    parts = np.isin(np.arange(strata.size), list(want)).astype(int)
+    for i, design in enumerate(study.designs):
+        n = ml.n_fine[i]
+        f = np.full(strata.size, np.nan)
+        f[list(ml.order[:n])] = [_fine_value(design, study.phantoms[j]) for j in ml.order[:n]]
+        assert ml.estimates[i] == multilevel_estimate(coarse[i], f, strata, take_all=tail, parts=parts)
+        assert ml.estimates[i] != multilevel_estimate(coarse[i], f, strata, take_all=tail)
+
+
 def test_se_factor_one_runs_every_phantom_fine_and_equals_the_plain_sweep(tmp_path):
     study = _study(tmp_path, factor=1.0)
     ml = run_sweep(study, fake_two_level, progress=False).multilevel
@@ -219,7 +255,9 @@ def _cli(tmp_path: Path, *extra: str):
                                           ("multilevel.coarse_electrics=both", "multilevel.coarse_electrics"),
                                           ("multilevel.control=best", "--set multilevel.control"),
                                           ("multilevel.take_all=0.6", "--set multilevel.take_all"),
-                                          ("multilevel.take_all='all'", "--set multilevel.take_all")])
+                                          ("multilevel.take_all='all'", "--set multilevel.take_all"),
+                                          ("multilevel.depth_split_mm=-1", "--set multilevel.depth_split_mm"),
+                                          ("multilevel.depth_split_mm=inf", "--set multilevel.depth_split_mm")])
 def test_cli_bad_values_exit_2_with_one_line_naming_the_key(tmp_path, setting, key):
     _study(tmp_path)
     done = _cli(tmp_path, "--set", setting)

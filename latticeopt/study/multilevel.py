@@ -65,6 +65,16 @@ with ``n_h = N_h``, exact), with variance ``var(F) / N_k + sum_h a_h^2 var_h(G) 
 ``ddof = 1`` variance of the ``N_k`` values splits. The choice depends on ``C`` only and the other phantoms keep
 their value-blind order, so the estimate stays unbiased; without take-all phantoms every formula is the one above.
 
+Depth parts: the corrections of deep presses vary several times as much as those of shallow ones, so each stratum's
+sampled phantoms can be split into parts fixed by the phantoms alone (:func:`depth_parts`: the deepest touch beyond
+a depth), sampled in proportion (every prefix of :func:`fine_order` of :func:`sampling_labels` holds within one
+of its share of each part) and estimated each on its own, exactly as the take-all part is: the correction term
+becomes ``sum_h a_h mean_{n_h}(G)`` over the parts and its variance ``sum_h a_h^2 var_h(G) (1 / n_h - 1 / N_h)``,
+which drops the between-parts spread of ``G`` that a single part pays. The plain SE the criterion compares with
+is the same ``var(F) / N`` by touch count (the parts only change how ``var(F)`` is pieced together). With
+proportional allocation over the parts the variance never exceeds the single part's to first order, and the
+stopping rule predicts the count with every part's ``var(G)`` (:func:`predicted_fine_count`).
+
 Which phantoms get the fine level, in what order, and the take-all choice: :mod:`.multilevel_plan`.
 """
 
@@ -75,10 +85,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .multilevel_plan import _strata, fine_order, min_fine_count, take_all_mask
+from .multilevel_plan import _strata, depth_parts, fine_order, min_fine_count, sampling_labels, take_all_mask
 
-__all__ = ["CONTROLS", "MultilevelEstimate", "fine_order", "gap_to_plain", "min_fine_count", "multilevel_estimate",
-           "next_fine_count", "predicted_fine_count", "take_all_mask"]
+__all__ = ["CONTROLS", "MultilevelEstimate", "depth_parts", "fine_order", "gap_to_plain", "min_fine_count",
+           "multilevel_estimate", "next_fine_count", "predicted_fine_count", "sampling_labels", "take_all_mask"]
 
 #: The control-variate coefficient: ``"fixed"`` (``beta = 1``) or ``"fitted"`` per design (module docstring).
 CONTROLS = ("fixed", "fitted")
@@ -131,9 +141,9 @@ class MultilevelEstimate:
         return bool(self.se <= se_factor * self.plain_fine_se)
 
 
-def _split(coarse, fine, strata, take_all=None):
-    """Per stratum ``(share of N, coarse values, parts)``, the parts (take-all phantoms, the rest) each
-    ``(share of the stratum, coarse values, fine values of the pairs, coarse values of the pairs, take-all)``."""
+def _split(coarse, fine, strata, take_all=None, parts=None):
+    """Per stratum ``(share of N, coarse values, parts)``, the parts (take-all phantoms, then one per sampling part)
+    each ``(share of the stratum, coarse values, fine values of the pairs, coarse values of the pairs, take-all)``."""
     c = np.asarray(coarse, dtype=float)
     f = np.asarray(fine, dtype=float)
     if c.ndim != 1 or f.shape != c.shape:
@@ -144,21 +154,24 @@ def _split(coarse, fine, strata, take_all=None):
     t = np.zeros(c.size, dtype=bool) if take_all is None else np.asarray(take_all, dtype=bool)
     if t.shape != c.shape:
         raise ValueError(f"take_all must have shape {c.shape}, got {t.shape}")
+    p = np.zeros(c.size, dtype=int) if parts is None else np.asarray(parts)
+    if p.shape != c.shape:
+        raise ValueError(f"parts must have shape {c.shape}, got {p.shape}")
     strata_parts = []
     for k in np.unique(s):
-        ck, fk, tk = c[s == k], f[s == k], t[s == k]
-        parts = []
-        for whole in (True, False):
-            sel = tk == whole
+        ck, fk, tk, pk = c[s == k], f[s == k], t[s == k], p[s == k]
+        parts_k = []
+        for sel, whole, h in [(tk, True, None)] + [(~tk & (pk == h), False, h) for h in np.unique(pk[~tk])]:
             has = np.isfinite(fk[sel])
             n = int(has.sum())
             if whole and n < sel.sum():
                 raise ValueError(f"stratum {k}: every take-all phantom needs the fine level")
             if not whole and sel.any() and (n < 2 and n < sel.sum() or n == 0):
-                raise ValueError(f"stratum {k}: {n} phantoms with both levels; at least 2 are needed (or all of it)")
+                where = f"stratum {k}" + (f", part {h}" if parts is not None else "")
+                raise ValueError(f"{where}: {n} phantoms with both levels; at least 2 are needed (or all of it)")
             if sel.any():
-                parts.append((sel.sum() / ck.size, ck[sel], fk[sel][has], ck[sel][has], whole))
-        strata_parts.append((ck.size / c.size, ck, parts))
+                parts_k.append((sel.sum() / ck.size, ck[sel], fk[sel][has], ck[sel][has], whole))
+        strata_parts.append((ck.size / c.size, ck, parts_k))
     return strata_parts
 
 
@@ -185,8 +198,8 @@ def _var(x: np.ndarray) -> float:
 @dataclass(frozen=True)
 class _Stratum:
     """One stratum's terms (module docstring): ``var_f`` the estimated ``var(F)`` over its phantoms, ``var_sub``
-    the variance of its sampled correction, ``var_corr`` ``sum a^2 var(G) / n`` over its parts, and the sampled
-    part's ``share``, size and ``var(G)`` (what more fine phantoms would shrink)."""
+    the variance of its sampled correction, ``var_corr`` ``sum a^2 var(G) / n`` over its parts, and per sampled
+    part its ``share``, size and ``var(G)`` (what more fine phantoms would shrink)."""
 
     w: float
     n_coarse: int
@@ -197,13 +210,13 @@ class _Stratum:
     var_f: float
     var_sub: float
     var_corr: float
-    sampled: tuple[float, int, float]
+    sampled: tuple[tuple[float, int, float], ...]
 
 
-def _per_stratum(coarse, fine, strata, control: str = "fixed", take_all=None):
+def _per_stratum(coarse, fine, strata, control: str = "fixed", take_all=None, parts=None):
     if control not in CONTROLS:
         raise ValueError(f"control must be one of {', '.join(CONTROLS)}, got {control!r}")
-    strata_parts = _split(coarse, fine, strata, take_all)
+    strata_parts = _split(coarse, fine, strata, take_all, parts)
     beta, inflate = _fitted_beta(strata_parts) if control == "fitted" else (1.0, 1.0)
     rows = []
     for w, ck, parts in strata_parts:
@@ -222,7 +235,7 @@ def _per_stratum(coarse, fine, strata, control: str = "fixed", take_all=None):
         n_pairs = sum(fp.size for _, _, fp, _, _ in parts)
         var_f = _var(ck) + var_d + 2.0 * cov_cd if n_pairs > 1 else 0.0
         g_mean = var_sub = var_corr = 0.0
-        sampled = (0.0, 0, 0.0)
+        sampled = []
         for a, ch, fp, cp, whole in parts:
             g = fp - beta * cp  # with beta = 1 exactly F - C
             var_g = _var(g) * inflate
@@ -230,13 +243,14 @@ def _per_stratum(coarse, fine, strata, control: str = "fixed", take_all=None):
             var_sub += a * a * var_g * (1.0 / fp.size - 1.0 / ch.size)
             var_corr += a * a * var_g / fp.size
             if not whole:
-                sampled = (a, ch.size, var_g)
+                sampled.append((a, ch.size, var_g))
         rows.append(_Stratum(w, ck.size, n_pairs, float(ck.mean()), g_mean,
-                             _var(ck), max(var_f, 0.0), var_sub, var_corr, sampled))
+                             _var(ck), max(var_f, 0.0), var_sub, var_corr, tuple(sampled)))
     return rows, beta
 
 
-def multilevel_estimate(coarse, fine, strata=None, take_all=None, *, control: str = "fixed") -> MultilevelEstimate:
+def multilevel_estimate(coarse, fine, strata=None, take_all=None, *, control: str = "fixed",
+                        parts=None) -> MultilevelEstimate:
     """The two-level estimate of the fine mean and its standard error (module docstring).
 
     Parameters
@@ -253,6 +267,11 @@ def multilevel_estimate(coarse, fine, strata=None, take_all=None, *, control: st
         ``beta = 1`` or ``beta`` fitted from the pairs (module docstring).
     take_all : array_like of bool, shape (N,), optional
         Phantoms that all have the fine level, chosen from the coarse values alone (:func:`take_all_mask`).
+    parts : array_like of int, shape (N,), optional
+        Sampling part of each phantom within its stratum, chosen from the phantoms alone (:func:`depth_parts`;
+        the take-all phantoms' entries are ignored): each part is estimated on its own, as a stratum of the
+        sampling, while the plain SE stays stratified by ``strata``. Each part needs 2 pairs (or all of it).
+        ``None``: one part per stratum.
 
     Returns
     -------
@@ -260,7 +279,7 @@ def multilevel_estimate(coarse, fine, strata=None, take_all=None, *, control: st
         With every phantom fine (``n = N``) ``mean`` is the plain fine mean (per stratum
         ``beta mean(C) + mean(F - beta C) = mean(F)``; exactly with ``beta = 1``) and ``se`` the plain fine SE.
     """
-    rows, beta = _per_stratum(coarse, fine, strata, control, take_all)
+    rows, beta = _per_stratum(coarse, fine, strata, control, take_all, parts)
     coarse_mean = corr = var = var_c = var_g = var_plain = 0.0
     for r in rows:
         coarse_mean += r.w * r.c_mean
@@ -277,12 +296,13 @@ def multilevel_estimate(coarse, fine, strata=None, take_all=None, *, control: st
 
 
 def predicted_fine_count(coarse, fine, strata=None, *, se_factor: float = 1.1, control: str = "fixed",
-                         take_all=None) -> float:
+                         take_all=None, parts=None) -> float:
     """Sampled fine phantoms needed for ``se <= se_factor * plain_fine_se``, from the variances measured so far.
 
-    Over the ``M`` phantoms that are not take-all, sampled in proportion to the strata (``m_k = m M_k / M``), the
-    sampled corrections add ``sum_k u_k^2 var_k(G) (1 / m_k - 1 / M_k) = S (M / m - 1)`` to ``var_plain``, with
-    ``u_k`` a stratum's sampled share of all ``N`` phantoms and ``S = sum_k u_k^2 var_k(G) / M_k`` (``var(G)`` as
+    Over the ``M`` phantoms that are not take-all, sampled in proportion to the strata's parts (``m_k = m M_k /
+    M``, ``k`` running over every stratum's sampling parts), the sampled corrections add
+    ``sum_k u_k^2 var_k(G) (1 / m_k - 1 / M_k) = S (M / m - 1)`` to ``var_plain``, with
+    ``u_k`` a part's share of all ``N`` phantoms and ``S = sum_k u_k^2 var_k(G) / M_k`` (``var(G)`` as
     :func:`multilevel_estimate` uses it, with the current ``beta``). Solving ``var_plain + S (M / m - 1) =
     se_factor^2 var_plain`` gives ``m = M S / (S + (se_factor^2 - 1) var_plain)``, at most ``M``; without
     take-all phantoms ``M = N`` and this is ``n = B / ((se_factor^2 - 1) var_plain + B / N)``,
@@ -290,7 +310,7 @@ def predicted_fine_count(coarse, fine, strata=None, *, se_factor: float = 1.1, c
 
     Parameters
     ----------
-    coarse, fine, strata, control, take_all
+    coarse, fine, strata, control, take_all, parts
         As in :func:`multilevel_estimate`.
     se_factor : float
         Allowed ratio of the two-level SE to the plain fine SE, >= 1.
@@ -302,16 +322,16 @@ def predicted_fine_count(coarse, fine, strata=None, *, se_factor: float = 1.1, c
     """
     if not se_factor >= 1:
         raise ValueError(f"se_factor must be >= 1, got {se_factor}")
-    rows, _ = _per_stratum(coarse, fine, strata, control, take_all)
-    m_total = sum(r.sampled[1] for r in rows)
-    s_term = sum((r.w * a) ** 2 * var_g / size for r in rows for a, size, var_g in [r.sampled] if size)
+    rows, _ = _per_stratum(coarse, fine, strata, control, take_all, parts)
+    m_total = sum(size for r in rows for _, size, _ in r.sampled)
+    s_term = sum((r.w * a) ** 2 * var_g / size for r in rows for a, size, var_g in r.sampled if size)
     var_plain = sum(r.w * r.w * r.var_f / r.n_coarse for r in rows)
     denom = s_term + (se_factor ** 2 - 1.0) * var_plain
     return float(m_total) if denom <= 0 else min(float(m_total), m_total * s_term / denom)
 
 
 def next_fine_count(coarse, fine, strata, n: int, *, pilot: int, se_factor: float, control: str = "fixed",
-                    take_all=None, order=None, min_growth: float = 0.0) -> int:
+                    take_all=None, order=None, min_growth: float = 0.0, parts=None) -> int:
     """How many sampled phantoms (a prefix of ``order``) should have the fine level next, besides the take-all
     ones.
 
@@ -326,7 +346,7 @@ def next_fine_count(coarse, fine, strata, n: int, *, pilot: int, se_factor: floa
     n : int
         The current prefix length (0 before the pilot).
     pilot : int
-        First prefix length; raised so every stratum has two sampled fine phantoms.
+        First prefix length; raised so every stratum (every part of one) has two sampled fine phantoms.
     se_factor : float
         The criterion ``se <= se_factor * plain_fine_se``.
     control : {"fixed", "fitted"}
@@ -335,11 +355,13 @@ def next_fine_count(coarse, fine, strata, n: int, *, pilot: int, se_factor: floa
         The take-all phantoms (:func:`take_all_mask`), all with the fine level.
     order : array_like of int, optional
         Positions of the other phantoms in the order they get the fine level; default :func:`fine_order` of
-        their strata.
+        their strata's parts (:func:`sampling_labels`).
     min_growth : float
         The smallest step as a share of ``n``, in ``[0, 1]``. 0 (default) steps to the predicted count however
         close it is; steps of at least a quarter (0.25) ran 12 % more sampled fine phantoms on the paper map for
         the same criterion (``benchmarks/multilevel_pilot.py --min-growth`` compares them on synthetic maps).
+    parts : array_like of int, shape (N,), optional
+        Sampling parts within the strata (:func:`multilevel_estimate`); ``order`` should interleave them.
 
     Returns
     -------
@@ -352,27 +374,30 @@ def next_fine_count(coarse, fine, strata, n: int, *, pilot: int, se_factor: floa
         raise ValueError(f"min_growth must be in [0, 1], got {min_growth}")
     c = np.asarray(coarse, dtype=float)
     s = _strata(strata, c.size)
+    lab = sampling_labels(s, parts)
     rest = np.flatnonzero(~np.asarray(take_all, dtype=bool)) if take_all is not None else np.arange(c.size)
-    order = rest[fine_order(s[rest])] if order is None else np.asarray(order, dtype=int)
+    order = rest[fine_order(lab[rest])] if order is None else np.asarray(order, dtype=int)
     m_total = order.size
-    start = min(m_total, max(int(pilot), min_fine_count(s[order], order=np.arange(m_total))))
+    start = min(m_total, max(int(pilot), min_fine_count(lab[order], order=np.arange(m_total))))
     if n < start:
         return start
-    if n >= m_total or multilevel_estimate(c, fine, s, control=control, take_all=take_all).meets(se_factor):
+    est = dict(control=control, take_all=take_all, parts=parts)
+    if n >= m_total or multilevel_estimate(c, fine, s, **est).meets(se_factor):
         return int(min(n, m_total))
-    want = math.ceil(predicted_fine_count(c, fine, s, se_factor=se_factor, control=control, take_all=take_all))
+    want = math.ceil(predicted_fine_count(c, fine, s, se_factor=se_factor, **est))
     return int(min(m_total, max(n + max(1, math.floor(min_growth * n)), min(2 * n, want))))
 
 
-def gap_to_plain(coarse, fine, strata, subset, take_all=None) -> tuple[float, float]:
+def gap_to_plain(coarse, fine, strata, subset, take_all=None, parts=None) -> tuple[float, float]:
     """How far the two-level estimate on ``subset`` lies from the plain fine mean, and the SE of that gap.
 
     For validating the estimator when every phantom has been run fine as well. Over common phantoms the gap is
     ``mu - mean_N(F) = sum_k w_k (mean_{n_k}(D) - mean_{N_k}(D))`` with ``D = F - C``: the subset's mean
     correction against the full one. For a nested simple random subset its variance is
-    ``sum_k w_k^2 var_k(D) (1 / n_k - 1 / N_k)`` (finite-population sampling of the ``N_k`` values of ``D``),
-    estimated here with ``var_k(D)`` over the whole stratum. So the gap's SE is much smaller than the two-level
-    SE, which also carries the sampling error of the ``N`` phantoms themselves, shared with the plain mean.
+    ``sum_k w_k^2 var_k(D) (1 / n_k - 1 / N_k)`` (finite-population sampling of the ``N_k`` values of ``D``;
+    with ``parts``, ``k`` runs over every stratum's parts), estimated here with ``var_k(D)`` over the whole
+    stratum. So the gap's SE is much smaller than the two-level SE, which also carries the sampling error of the
+    ``N`` phantoms themselves, shared with the plain mean.
 
     Parameters
     ----------
@@ -384,6 +409,8 @@ def gap_to_plain(coarse, fine, strata, subset, take_all=None) -> tuple[float, fl
         The phantoms the two-level estimate has fine.
     take_all : array_like of bool, shape (N,), optional
         Its take-all phantoms (fine in the estimate whatever ``subset`` says; no sampling error).
+    parts : array_like of int, shape (N,), optional
+        Its sampling parts within the strata (:func:`multilevel_estimate`).
 
     Returns
     -------
@@ -397,12 +424,13 @@ def gap_to_plain(coarse, fine, strata, subset, take_all=None) -> tuple[float, fl
         raise ValueError("coarse, fine and subset must have one shape, with every fine value finite")
     s = _strata(strata, c.size)
     t = np.zeros(c.size, dtype=bool) if take_all is None else np.asarray(take_all, dtype=bool)
-    part = multilevel_estimate(c, np.where(sub | t, f, np.nan), s, take_all=t).mean
+    part = multilevel_estimate(c, np.where(sub | t, f, np.nan), s, take_all=t, parts=parts).mean
     full = multilevel_estimate(c, f, s).mean
     d = f - c
     var = 0.0
-    for k in np.unique(s):
-        sel = (s == k) & ~t  # the take-all phantoms are all in, and add nothing
+    lab = sampling_labels(s, parts)
+    for k in np.unique(lab):
+        sel = (lab == k) & ~t  # the take-all phantoms are all in, and add nothing
         big, n = int(sel.sum()), int((sel & sub).sum())
         if big > 1:
             var += (big / c.size) ** 2 * float(np.var(d[sel], ddof=1)) * (1.0 / n - 1.0 / big)

@@ -4,7 +4,8 @@ The study's phantoms come ordered by touch count (all single touches first), so 
 would be single touches only. :func:`fine_order` interleaves the strata (touch counts) in proportion to their
 sizes (within a stratum in sequence order), so every prefix is a nested, near-proportional sample of each
 stratum; :func:`take_all_mask` picks the phantoms that get the fine level whatever the pilot says, from the coarse
-values alone (:mod:`latticeopt.study.multilevel` has the estimate and the stopping rule).
+values alone; :func:`depth_parts` splits the other phantoms of each stratum into shallow and deep sampling parts
+(:mod:`latticeopt.study.multilevel` has the estimate and the stopping rule).
 """
 
 from __future__ import annotations
@@ -13,7 +14,11 @@ import math
 
 import numpy as np
 
-__all__ = ["fine_order", "min_fine_count", "take_all_mask"]
+__all__ = ["MIN_PART", "depth_parts", "fine_order", "min_fine_count", "sampling_labels", "take_all_mask"]
+
+#: Fewest phantoms a depth part may hold: a stratum whose shallow or deep sampled phantoms are fewer stays whole
+#: (a part needs two pairs for its variance, so a smaller one would be sampled far above its share).
+MIN_PART = 10
 
 
 def _strata(strata, size: int) -> np.ndarray:
@@ -21,6 +26,51 @@ def _strata(strata, size: int) -> np.ndarray:
     if s.shape != (size,):
         raise ValueError(f"strata must have shape ({size},), got {s.shape}")
     return s
+
+
+def sampling_labels(strata, parts=None) -> np.ndarray:
+    """One label per (stratum, part) pair, ranked as the strata are (parts ``None``: the strata's own ranks)."""
+    s = np.asarray(strata)
+    p = np.zeros(s.size, dtype=int) if parts is None else np.asarray(parts)
+    if p.shape != s.shape:
+        raise ValueError(f"parts must have shape {s.shape}, got {p.shape}")
+    return np.unique(np.stack([np.unique(s, return_inverse=True)[1].ravel(), p]), axis=1,
+                     return_inverse=True)[1].ravel()
+
+
+def depth_parts(deepest_mm, strata, split_mm: float, take_all=None) -> np.ndarray:
+    """Sampling parts by depth: 1 for a phantom whose deepest touch presses beyond ``split_mm``, else 0.
+
+    The fine-minus-coarse corrections of deep presses vary several times as much as those of shallow ones, so
+    estimating each part on its own (and sampling both in proportion, :func:`fine_order` of
+    :func:`sampling_labels`) needs fewer fine phantoms for the same SE than one part would. The split uses the
+    phantoms alone, never their values, so the estimate stays unbiased.
+
+    Parameters
+    ----------
+    deepest_mm : array_like, shape (N,)
+        Depth of each phantom's deepest touch (mm).
+    strata : array_like, shape (N,) or None
+        Stratum label per phantom (touch count).
+    split_mm : float
+        The depth beyond which a press is deep (mm); 0 gives one part (all 0).
+    take_all : array_like of bool, shape (N,), optional
+        The take-all phantoms: outside the sampling, so they count towards neither part's size.
+
+    Returns
+    -------
+    ndarray of int, shape (N,)
+        0 or 1; all 0 in a stratum whose shallow or deep sampled phantoms number fewer than :data:`MIN_PART`.
+    """
+    d = np.asarray(deepest_mm, dtype=float)
+    s = _strata(strata, d.size)
+    t = np.zeros(d.size, dtype=bool) if take_all is None else np.asarray(take_all, dtype=bool)
+    deep = (d > split_mm) if split_mm > 0 else np.zeros(d.size, dtype=bool)
+    for k in np.unique(s):
+        sel = (s == k) & ~t
+        if min(int(np.sum(deep[sel])), int(np.sum(~deep[sel]))) < MIN_PART:
+            deep[s == k] = False
+    return deep.astype(int)
 
 
 def fine_order(strata) -> np.ndarray:

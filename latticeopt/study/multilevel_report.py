@@ -80,7 +80,8 @@ def paired_difference(study: Study, run: MultilevelRun, a: int, b: int):
     for j in run.order[:m]:
         f[pos[j]] = run.fine[(a, j)].v_rel - run.fine[(b, j)].v_rel
     strata = np.array([study.phantoms[j].n_touches for j in run.used])
-    return multilevel_estimate(c, f, strata, control=study.multilevel.control, take_all=run.take_all_mask())
+    return multilevel_estimate(c, f, strata, control=study.multilevel.control, take_all=run.take_all_mask(),
+                               parts=run.parts())
 
 
 def model_seconds(study: Study, run: MultilevelRun) -> dict[str, float]:
@@ -168,7 +169,10 @@ def write_multilevel_outputs(study: Study, run: MultilevelRun, out: Path) -> tup
              f"{c.size_mm:g} mm ({c.channel_cells} channel cells, electrics on the {ml.coarse_electrics} mesh{extra}) "
              f"on every phantom, fine mesh {f.size_mm:g} mm "
              f"on the take-all phantoms ({len(run.take_all)}: the share {ml.take_all:g} of each touch count with the "
-             f"highest coarse V_rel) and a nested subset of the others until SE <= {ml.se_factor:g} x the "
+             f"highest coarse V_rel) and a nested subset of the others"
+             + (f" (sampled as shallow and deep parts, {len(run.deep)} deeper than {ml.depth_split_mm:g} mm)"
+                if run.deep else "")
+             + f" until SE <= {ml.se_factor:g} x the "
              f"estimated plain fine SE (pilot {ml.pilot}); "
              + ("control fixed: beta = 1 (coarse mean plus the mean fine-minus-coarse correction)"
                 if ml.control == "fixed" else "control fitted: beta = cov(F, C) / var(C) per design, pooled over "

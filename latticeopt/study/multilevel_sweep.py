@@ -8,8 +8,9 @@ store. Steps:
    on the coarse one; the ``[physics]`` keys of ``multilevel.coarse_physics`` changed).
 2. The phantoms every compared design solved at the coarse level: first the take-all ones (``multilevel.take_all``
    of each touch count, those whose coarse V_rel ranks highest on average over the compared designs), then the
-   others ordered by :func:`~latticeopt.study.multilevel.fine_order` (touch counts interleaved): the fine subset
-   of a design is a prefix of that one order, so it is nested and common to all designs.
+   others ordered by :func:`~latticeopt.study.multilevel.fine_order` (touch counts, and within each its shallow and
+   deep presses, ``multilevel.depth_split_mm``, interleaved): the fine subset of a design is a prefix of that one
+   order, so it is nested and common to all designs.
 3. The take-all phantoms and a pilot on the fine mesh (the study's own settings), then, per design, longer prefixes
    (:func:`~latticeopt.study.multilevel.next_fine_count`) until the two-level SE is within ``se_factor`` of the
    estimated plain fine SE or every phantom is fine (the SE of the estimate with ``multilevel.control``'s
@@ -34,7 +35,15 @@ import numpy as np
 
 from .config import Study
 from .engine import evaluate_designs, run_prefixes
-from .multilevel import MultilevelEstimate, fine_order, multilevel_estimate, next_fine_count, take_all_mask
+from .multilevel import (
+    MultilevelEstimate,
+    depth_parts,
+    fine_order,
+    multilevel_estimate,
+    next_fine_count,
+    sampling_labels,
+    take_all_mask,
+)
 from .settings import EvalSettings, coarse_level_settings
 from .store import Evaluation
 
@@ -61,6 +70,9 @@ class MultilevelRun:
         ``used`` in fine order, the take-all phantoms first: design ``i``'s fine subset is ``order[:n_fine[i]]``.
     take_all
         The take-all phantoms (positions in the study's phantoms), the first ``len(take_all)`` of :attr:`order`.
+    deep
+        The sampled phantoms (positions in the study's phantoms) of the deep parts (``multilevel.depth_split_mm``;
+        empty without a split).
     n_fine
         Prefix length per design (0 for a design not compared).
     estimates
@@ -78,6 +90,7 @@ class MultilevelRun:
     used: tuple[int, ...]
     order: tuple[int, ...]
     take_all: tuple[int, ...]
+    deep: tuple[int, ...]
     n_fine: tuple[int, ...]
     estimates: tuple[MultilevelEstimate | None, ...]
     compared: tuple[int, ...]
@@ -93,6 +106,10 @@ class MultilevelRun:
     def take_all_mask(self) -> np.ndarray:
         """:attr:`take_all` as a mask over :attr:`used`."""
         return np.isin(np.array(self.used, dtype=int), np.array(self.take_all, dtype=int))
+
+    def parts(self) -> np.ndarray:
+        """The sampling part over :attr:`used`: 1 for a phantom of :attr:`deep`, else 0 (the estimates' ``parts``)."""
+        return np.isin(np.array(self.used, dtype=int), np.array(self.deep, dtype=int)).astype(int)
 
 
 def _arrays(study, coarse, fine, used, order, i, n):
@@ -151,8 +168,11 @@ def run_multilevel(study: Study, settings: EvalSettings, out_dir, evaluate: Call
                 if all(coarse[i * nph + j].ok and (fine[(i, j)].ok if (i, j) in fine else True) for i in compared)]
         strata = np.array([study.phantoms[j].n_touches for j in used])
         tail = _take_all(study, coarse, used, compared, strata, ml.take_all)
+        deepest = [max(t.depth_mm for t in study.phantoms[j].touches) for j in used]
+        parts = depth_parts(deepest, strata, ml.depth_split_mm, tail)
         rest = np.flatnonzero(~tail)
-        sampled_order = rest[fine_order(strata[rest])]  # positions in ``used`` of the phantoms not taken whole
+        # positions in ``used`` of the phantoms not taken whole, touch counts and depth parts interleaved
+        sampled_order = rest[fine_order(sampling_labels(strata, parts)[rest])]
         order = [used[k] for k in np.flatnonzero(tail)] + [used[k] for k in sampled_order]
         n_tail = int(tail.sum())
         want: dict[int, int] = {}
@@ -166,7 +186,7 @@ def run_multilevel(study: Study, settings: EvalSettings, out_dir, evaluate: Call
             c, f, s = _arrays(study, coarse, fine, used, order, i, n[i])
             sampled = max(n[i] - n_tail, 0)
             nxt = n_tail + next_fine_count(c, f, s, sampled, pilot=ml.pilot, se_factor=ml.se_factor,
-                                           control=ml.control, take_all=tail, order=sampled_order)
+                                           control=ml.control, take_all=tail, order=sampled_order, parts=parts)
             if nxt != n[i]:
                 want[i] = nxt
         if not want:
@@ -178,9 +198,10 @@ def run_multilevel(study: Study, settings: EvalSettings, out_dir, evaluate: Call
     for i in compared:
         if used and n[i]:
             estimates[i] = multilevel_estimate(*_arrays(study, coarse, fine, used, order, i, n[i]),
-                                               control=ml.control, take_all=tail)
+                                               control=ml.control, take_all=tail, parts=parts)
     return MultilevelRun(coarse_settings=coarse_settings, fine_settings=settings, coarse=coarse, fine=fine,
                          used=tuple(used), order=tuple(order), take_all=tuple(order[:n_tail]),
+                         deep=tuple(used[k] for k in np.flatnonzero((parts > 0) & ~tail)),
                          n_fine=tuple(n.get(i, 0) for i in range(nd)),
                          estimates=tuple(estimates), compared=tuple(compared), computed_coarse=computed_coarse,
                          computed_fine=computed_fine)

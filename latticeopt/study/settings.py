@@ -196,6 +196,12 @@ class MultilevelSettings:
         cannot hide from the pilot; the estimate stays unbiased (a stratum chosen from the coarse values alone,
         :mod:`latticeopt.study.multilevel`). Default 0.05 (``benchmarks/multilevel_control.py``); 0 samples
         every phantom. Not part of any results-store key.
+    depth_split_mm
+        Depth (mm, >= 0) beyond which a sampled phantom (not take-all) is deep: each touch count's sampled
+        phantoms are split into shallow and deep parts, sampled in proportion and estimated each on its own, since
+        the fine-minus-coarse correction varies several times as much on deep presses
+        (:func:`~latticeopt.study.multilevel.depth_parts`; a part of fewer than 10 phantoms is not split off).
+        Default 4.0; 0 keeps one part per touch count. Not part of any results-store key.
     """
 
     coarse: MeshSettings = field(default_factory=lambda: MeshSettings(size_mm=4.0, channel_cells=1))
@@ -205,6 +211,7 @@ class MultilevelSettings:
     se_factor: float = 1.1
     control: str = "fixed"
     take_all: float = 0.05
+    depth_split_mm: float = 4.0
 
     def __post_init__(self) -> None:
         if not isinstance(self.coarse, MeshSettings):
@@ -227,6 +234,8 @@ class MultilevelSettings:
         object.__setattr__(self, "control", v.choice("control", self.control, CONTROLS))
         object.__setattr__(self, "take_all", v.real("take_all", self.take_all, lo=0.0, hi=0.5,
                                                     expected="a share 0 <= take_all <= 0.5 of each touch count"))
+        object.__setattr__(self, "depth_split_mm", v.real("depth_split_mm", self.depth_split_mm, lo=0.0,
+                                                          expected="a depth >= 0 mm (0: no depth parts)"))
 
 
 # -- adaptive phantom counts (target_se and friends in [phantoms]) -------------------------------------------
