@@ -15,7 +15,7 @@ from latticeopt.study.multilevel import (
     predicted_fine_count,
     take_all_mask,
 )
-from latticeopt.study.multilevel_plan import MIN_PART, depth_parts, fine_order, min_fine_count, sampling_labels
+from latticeopt.study.multilevel_plan import MIN_PART, depth_parts, fine_order, sampling_labels, sampling_order
 
 STRATA = np.repeat([1, 2, 3], 60)
 
@@ -33,7 +33,7 @@ def _depth_map(rng, strata=STRATA):
 def _stratified_prefix(f, strata, parts, n, take_all=None):
     t = np.zeros(f.size, dtype=bool) if take_all is None else take_all
     rest = np.flatnonzero(~t)
-    idx = rest[fine_order(sampling_labels(strata, parts)[rest])[:n]]
+    idx = rest[sampling_order(strata[rest], None if parts is None else parts[rest])[:n]]
     out = np.where(t, f, np.nan)
     out[idx] = f[idx]
     return out
@@ -63,20 +63,23 @@ def test_sampling_labels_refine_the_strata_and_keep_their_order():
         sampling_labels(strata, np.zeros(4))
 
 
-def test_every_prefix_holds_each_part_in_proportion():
+def test_the_order_puts_two_of_each_part_first_then_holds_each_in_proportion():
     rng = np.random.default_rng(1)
     depth, _, _ = _depth_map(rng)
     parts = depth_parts(depth, STRATA, 3.0)
     lab = sampling_labels(STRATA, parts)
-    order = fine_order(lab)
-    for n in (10, 31, 77, 150):
-        for k in np.unique(lab):
-            share = np.mean(lab == k)
-            assert abs(np.sum(lab[order[:n]] == k) - n * share) <= 1.0
-    # the pilot is raised until every part has two sampled phantoms
+    cells = np.unique(lab)
+    order = sampling_order(STRATA, parts)
+    assert sorted(np.bincount(lab[order[:2 * cells.size]]).tolist()) == [2] * cells.size
+    for n in (31, 77, 150):
+        for k in cells:
+            assert abs(np.sum(lab[order[:n]] == k) - n * np.mean(lab == k)) <= 2.0
+    # without parts the order is the touch counts' own, and the pilot holds two of each part
+    assert sampling_order(STRATA, None).tolist() == fine_order(STRATA).tolist()
+    assert sampling_order(STRATA, 0 * parts).tolist() == fine_order(STRATA).tolist()
     start = next_fine_count(np.zeros(STRATA.size), np.full(STRATA.size, np.nan), STRATA, 0, pilot=2,
                             se_factor=1.1, parts=parts)
-    assert start == min_fine_count(lab) and all(np.sum(lab[order[:start]] == k) >= 2 for k in np.unique(lab))
+    assert start == 2 * cells.size
 
 
 def test_one_part_is_the_estimator_without_parts():

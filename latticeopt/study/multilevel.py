@@ -65,15 +65,16 @@ with ``n_h = N_h``, exact), with variance ``var(F) / N_k + sum_h a_h^2 var_h(G) 
 ``ddof = 1`` variance of the ``N_k`` values splits. The choice depends on ``C`` only and the other phantoms keep
 their value-blind order, so the estimate stays unbiased; without take-all phantoms every formula is the one above.
 
-Depth parts: the corrections of deep presses vary several times as much as those of shallow ones, so each stratum's
-sampled phantoms can be split into parts fixed by the phantoms alone (:func:`depth_parts`: the deepest touch beyond
-a depth), sampled in proportion (every prefix of :func:`fine_order` of :func:`sampling_labels` holds within one
-of its share of each part) and estimated each on its own, exactly as the take-all part is: the correction term
-becomes ``sum_h a_h mean_{n_h}(G)`` over the parts and its variance ``sum_h a_h^2 var_h(G) (1 / n_h - 1 / N_h)``,
-which drops the between-parts spread of ``G`` that a single part pays. The plain SE the criterion compares with
-is the same ``var(F) / N`` by touch count (the parts only change how ``var(F)`` is pieced together). With
-proportional allocation over the parts the variance never exceeds the single part's to first order, and the
-stopping rule predicts the count with every part's ``var(G)`` (:func:`predicted_fine_count`).
+Depth parts: the corrections of deep presses vary several times as much as those of shallow ones, so each
+stratum's sampled phantoms can be split into parts fixed by the phantoms alone (:func:`depth_parts`: the deepest
+touch beyond a depth), sampled in proportion (every prefix of :func:`sampling_order` holds within one of its share
+of each part, beyond the two of each part it puts first) and estimated each on its own, exactly as the take-all
+part is: the correction term becomes ``sum_h a_h mean_{n_h}(G)`` over the parts and its variance
+``sum_h a_h^2 var_h(G) (1 / n_h - 1 / N_h)``, which drops the between-parts spread of ``G`` that a single part
+pays. The plain SE the criterion compares with is the same ``var(F) / N`` by touch count (the parts only change
+how ``var(F)`` is pieced together). With proportional allocation over the parts the variance never exceeds the
+single part's to first order, and the stopping rule predicts the count with every part's ``var(G)``
+(:func:`predicted_fine_count`).
 
 Which phantoms get the fine level, in what order, and the take-all choice: :mod:`.multilevel_plan`.
 """
@@ -85,10 +86,19 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .multilevel_plan import _strata, depth_parts, fine_order, min_fine_count, sampling_labels, take_all_mask
+from .multilevel_plan import (
+    _strata,
+    depth_parts,
+    fine_order,
+    min_fine_count,
+    sampling_labels,
+    sampling_order,
+    take_all_mask,
+)
 
 __all__ = ["CONTROLS", "MultilevelEstimate", "depth_parts", "fine_order", "gap_to_plain", "min_fine_count",
-           "multilevel_estimate", "next_fine_count", "predicted_fine_count", "sampling_labels", "take_all_mask"]
+           "multilevel_estimate", "next_fine_count", "predicted_fine_count", "sampling_labels", "sampling_order",
+           "take_all_mask"]
 
 #: The control-variate coefficient: ``"fixed"`` (``beta = 1``) or ``"fitted"`` per design (module docstring).
 CONTROLS = ("fixed", "fitted")
@@ -354,8 +364,8 @@ def next_fine_count(coarse, fine, strata, n: int, *, pilot: int, se_factor: floa
     take_all : array_like of bool, shape (N,), optional
         The take-all phantoms (:func:`take_all_mask`), all with the fine level.
     order : array_like of int, optional
-        Positions of the other phantoms in the order they get the fine level; default :func:`fine_order` of
-        their strata's parts (:func:`sampling_labels`).
+        Positions of the other phantoms in the order they get the fine level; default :func:`sampling_order` of
+        their strata and parts.
     min_growth : float
         The smallest step as a share of ``n``, in ``[0, 1]``. 0 (default) steps to the predicted count however
         close it is; steps of at least a quarter (0.25) ran 12 % more sampled fine phantoms on the paper map for
@@ -376,7 +386,8 @@ def next_fine_count(coarse, fine, strata, n: int, *, pilot: int, se_factor: floa
     s = _strata(strata, c.size)
     lab = sampling_labels(s, parts)
     rest = np.flatnonzero(~np.asarray(take_all, dtype=bool)) if take_all is not None else np.arange(c.size)
-    order = rest[fine_order(lab[rest])] if order is None else np.asarray(order, dtype=int)
+    order = rest[sampling_order(s[rest], None if parts is None else np.asarray(parts)[rest])] if order is None \
+        else np.asarray(order, dtype=int)
     m_total = order.size
     start = min(m_total, max(int(pilot), min_fine_count(lab[order], order=np.arange(m_total))))
     if n < start:

@@ -14,7 +14,8 @@ import math
 
 import numpy as np
 
-__all__ = ["MIN_PART", "depth_parts", "fine_order", "min_fine_count", "sampling_labels", "take_all_mask"]
+__all__ = ["MIN_PART", "depth_parts", "fine_order", "min_fine_count", "sampling_labels", "sampling_order",
+           "take_all_mask"]
 
 #: Fewest phantoms a depth part may hold: a stratum whose shallow or deep sampled phantoms are fewer stays whole
 #: (a part needs two pairs for its variance, so a smaller one would be sampled far above its share).
@@ -42,8 +43,8 @@ def depth_parts(deepest_mm, strata, split_mm: float, take_all=None) -> np.ndarra
     """Sampling parts by depth: 1 for a phantom whose deepest touch presses beyond ``split_mm``, else 0.
 
     The fine-minus-coarse corrections of deep presses vary several times as much as those of shallow ones, so
-    estimating each part on its own (and sampling both in proportion, :func:`fine_order` of
-    :func:`sampling_labels`) needs fewer fine phantoms for the same SE than one part would. The split uses the
+    estimating each part on its own (and sampling both in proportion, :func:`sampling_order`) needs fewer fine
+    phantoms for the same SE than one part would. The split uses the
     phantoms alone, never their values, so the estimate stays unbiased.
 
     Parameters
@@ -73,27 +74,46 @@ def depth_parts(deepest_mm, strata, split_mm: float, take_all=None) -> np.ndarra
     return deep.astype(int)
 
 
-def fine_order(strata) -> np.ndarray:
+def fine_order(strata, first: int = 0) -> np.ndarray:
     """The order in which phantoms get the fine level: strata interleaved in proportion to their sizes.
 
     Parameters
     ----------
     strata : array_like, shape (N,)
         Stratum label of every phantom (e.g. its touch count), in sequence order.
+    first : int
+        Phantoms of every stratum put before all others (the first of each stratum, then the second, ...): so
+        that a short prefix already holds the two pairs a small stratum needs (:func:`sampling_order`).
 
     Returns
     -------
     ndarray of int, shape (N,)
         A permutation of ``0..N-1``. Phantom ``r`` of a stratum of ``N_k`` (``r``-th in sequence order) gets the
-        key ``(r + 0.5) / N_k``; sorting by key (ties by stratum label) makes every prefix of length ``n`` hold
-        within one of ``n N_k / N`` phantoms of each stratum, the first ones of the stratum: prefixes are nested.
+        key ``(r + 0.5) / N_k`` (``r - first`` for ``r < first``); sorting by key (ties by stratum label) makes
+        every prefix of length ``n`` hold within one of ``n N_k / N`` phantoms of each stratum (beyond the
+        ``first`` of each), the first ones of the stratum: prefixes are nested.
     """
     s = np.asarray(strata)
     keys = np.empty(s.size)
     for k in np.unique(s):
         idx = np.flatnonzero(s == k)
-        keys[idx] = (np.arange(idx.size) + 0.5) / idx.size
+        r = np.arange(idx.size)
+        keys[idx] = np.where(r < first, r - first, (r + 0.5) / idx.size)
     return np.lexsort((np.arange(s.size), s, keys))
+
+
+def sampling_order(strata, parts=None) -> np.ndarray:
+    """The fine order of a two-level sweep: :func:`fine_order` of the strata or, with sampling parts (any part
+    label not 0), of every (stratum, part) cell with each cell's first two put first.
+
+    A part as small as a twentieth of the phantoms would otherwise get its second phantom only some 30 phantoms
+    into the order, and every design would run that many before its estimate exists (each part needs two pairs);
+    putting two of each part first keeps the pilot at two per part. The estimate weights each part by its share,
+    so the allocation need not be proportional to be unbiased; beyond the first two of each part it is.
+    """
+    if parts is None or not np.any(parts):
+        return fine_order(strata)
+    return fine_order(sampling_labels(strata, parts), first=2)
 
 
 def min_fine_count(strata, per_stratum: int = 2, order=None) -> int:

@@ -8,8 +8,8 @@ store. Steps:
    on the coarse one; the ``[physics]`` keys of ``multilevel.coarse_physics`` changed).
 2. The phantoms every compared design solved at the coarse level: first the take-all ones (``multilevel.take_all``
    of each touch count, those whose coarse V_rel ranks highest on average over the compared designs), then the
-   others ordered by :func:`~latticeopt.study.multilevel.fine_order` (touch counts, and within each its shallow and
-   deep presses, ``multilevel.depth_split_mm``, interleaved): the fine subset of a design is a prefix of that one
+   others ordered by :func:`~latticeopt.study.multilevel.sampling_order` (touch counts, and within each its shallow
+   and deep presses, ``multilevel.depth_split_mm``, interleaved): the fine subset of a design is a prefix of that one
    order, so it is nested and common to all designs.
 3. The take-all phantoms and a pilot on the fine mesh (the study's own settings), then, per design, longer prefixes
    (:func:`~latticeopt.study.multilevel.next_fine_count`) until the two-level SE is within ``se_factor`` of the
@@ -38,10 +38,9 @@ from .engine import evaluate_designs, run_prefixes
 from .multilevel import (
     MultilevelEstimate,
     depth_parts,
-    fine_order,
     multilevel_estimate,
     next_fine_count,
-    sampling_labels,
+    sampling_order,
     take_all_mask,
 )
 from .settings import EvalSettings, coarse_level_settings
@@ -172,7 +171,7 @@ def run_multilevel(study: Study, settings: EvalSettings, out_dir, evaluate: Call
         parts = depth_parts(deepest, strata, ml.depth_split_mm, tail)
         rest = np.flatnonzero(~tail)
         # positions in ``used`` of the phantoms not taken whole, touch counts and depth parts interleaved
-        sampled_order = rest[fine_order(sampling_labels(strata, parts)[rest])]
+        sampled_order = rest[sampling_order(strata[rest], parts[rest])]
         order = [used[k] for k in np.flatnonzero(tail)] + [used[k] for k in sampled_order]
         n_tail = int(tail.sum())
         want: dict[int, int] = {}
