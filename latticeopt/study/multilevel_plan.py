@@ -44,8 +44,8 @@ def depth_parts(deepest_mm, strata, split_mm: float, take_all=None) -> np.ndarra
 
     The fine-minus-coarse corrections of deep presses vary several times as much as those of shallow ones, so
     estimating each part on its own (and sampling both in proportion, :func:`sampling_order`) needs fewer fine
-    phantoms for the same SE than one part would. The split uses the
-    phantoms alone, never their values, so the estimate stays unbiased.
+    phantoms for the same SE than one part would. The split uses the phantoms alone, never their values, so the
+    estimate stays unbiased.
 
     Parameters
     ----------
