@@ -13,7 +13,7 @@
    two-level run made are read, only the rest are computed;
 3. prints per design the two-level mean and SE with its fine count ``n`` of ``N``; the plain fine mean and SE
    over the same ``N`` phantoms (stratified by touch count, as the estimator is); their difference in units of
-   the two-level SE and of the difference's own SE (:func:`~latticeopt.study.multilevel.gap_to_plain`); the SE
+   the two-level SE and of the difference's own SE (:func:`~latticeopt.study.multilevel_check.gap_to_plain`); the SE
    ratio two-level / plain (the target is ``se_factor``); and the model seconds each estimator cost.
 
 Agreement means ``|two-level - plain| <= 2`` two-level SEs. A phantom that fails on the fine mesh outside the
@@ -35,7 +35,8 @@ import numpy as np  # noqa: E402
 
 from latticeopt.errors import LatticeoptError  # noqa: E402
 from latticeopt.study.config import load_study  # noqa: E402
-from latticeopt.study.multilevel import gap_to_plain, multilevel_estimate  # noqa: E402
+from latticeopt.study.multilevel import multilevel_estimate  # noqa: E402
+from latticeopt.study.multilevel_check import gap_to_plain  # noqa: E402
 from latticeopt.study.multilevel_sweep import run_multilevel  # noqa: E402
 from latticeopt.study.sweep import evaluate_designs, resolve_model  # noqa: E402
 

@@ -9,7 +9,6 @@ import pytest
 
 from latticeopt.study.multilevel import (
     fine_order,
-    gap_to_plain,
     min_fine_count,
     multilevel_estimate,
     next_fine_count,
@@ -149,33 +148,6 @@ def test_the_pilot_covers_every_stratum_twice_and_bad_input_is_refused():
         multilevel_estimate(c, c[:10])
     with pytest.raises(ValueError, match="se_factor"):
         predicted_fine_count(c, c, se_factor=0.9)
-
-
-def test_gap_to_the_plain_mean_has_the_stated_spread_over_random_subsets():
-    # one fixed population of phantoms; the subset is a random nested sample of each stratum (a random phantom
-    # order, as the study's seeded phantoms are in random order): the gap's spread over subsets is its SE
-    rng = np.random.default_rng(5)
-    c, f = _draw(rng)
-    gaps, ses = [], []
-    for _ in range(3000):
-        perm = rng.permutation(STRATA.size)
-        sub = np.zeros(STRATA.size, dtype=bool)
-        sub[perm[fine_order(STRATA[perm])[:24]]] = True
-        gap, se = gap_to_plain(c, f, STRATA, sub)
-        gaps.append(gap)
-        ses.append(se)
-    assert abs(np.mean(gaps)) < 4 * np.std(gaps) / math.sqrt(len(gaps))  # unbiased
-    assert np.std(gaps) == pytest.approx(ses[0], rel=0.06)
-    assert np.ptp(ses) == 0  # var(D) over whole strata: one value for every subset of one size per stratum
-    # the gap is exactly the difference of the two estimates, and vanishes with every phantom fine
-    sub = np.zeros(STRATA.size, dtype=bool)
-    sub[fine_order(STRATA)[:30]] = True
-    gap, _ = gap_to_plain(c, f, STRATA, sub)
-    assert gap == pytest.approx(multilevel_estimate(c, np.where(sub, f, np.nan), STRATA).mean - np.mean(
-        [f[STRATA == k].mean() for k in (1, 2, 3)]), abs=1e-15)
-    assert gap_to_plain(c, f, STRATA, np.ones(STRATA.size, dtype=bool)) == (pytest.approx(0, abs=1e-15), 0.0)
-    with pytest.raises(ValueError):
-        gap_to_plain(c, np.where(sub, f, np.nan), STRATA, sub)
 
 
 def test_plain_variance_from_the_coarse_level_is_more_precise_than_from_the_fine_subset():

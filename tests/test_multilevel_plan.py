@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 
 from latticeopt.study.multilevel import (
-    gap_to_plain,
     multilevel_estimate,
     next_fine_count,
     predicted_fine_count,
     take_all_mask,
 )
+from latticeopt.study.multilevel_check import gap_to_plain
 from latticeopt.study.multilevel_plan import MIN_PART, depth_parts, fine_order, sampling_labels, sampling_order
 
 STRATA = np.repeat([1, 2, 3], 60)
