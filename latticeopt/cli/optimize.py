@@ -61,7 +61,7 @@ def run_optimize_command(args: argparse.Namespace) -> int:
     from ..errors import AllFailedError
     from ..optimize import effective_bounds_text, run_optimization
     from ..optimize.categories import plot_categories, write_summary
-    from ..study.report import floor_text
+    from ..study.report_lines import floor_text
 
     check_study_file(args.study)
     from ..optimize.categories import categorical_optimizations

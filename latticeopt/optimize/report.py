@@ -20,7 +20,8 @@ import numpy as np
 from .._jsonout import jsonable
 from ..fabrication import spans_text
 from ..study.imaging import FIGURES
-from ..study.report import floor_text, round_off_lines, write_csv
+from ..study.report import write_csv
+from ..study.report_lines import floor_text, round_off_lines
 from ..study.store import STORE_NAME, ResultStore
 from .problem import effective_bounds_text
 

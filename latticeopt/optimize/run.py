@@ -61,7 +61,7 @@ def assess_design(design: LatticeDesign, *, phantoms: Sequence[Phantom], probes:
     failed again (after a solver change) instead of reading the failure.
     """
     from ..study.engine import evaluate_designs
-    from ..study.report import smallest_reference
+    from ..study.report_lines import smallest_reference
 
     t0 = time.perf_counter()
     evs, computed = evaluate_designs([design], list(phantoms) + list(probes), settings, out_dir, evaluate,

@@ -20,22 +20,10 @@ from pathlib import Path
 from ..captions import counted
 from .adaptive_sweep import AdaptiveRun
 from .config import Study
-from .report import (
-    _fmt,
-    _value,
-    floor_text,
-    mean_se,
-    phantom_name,
-    rerun_lines,
-    round_off_lines,
-    smallest_reference,
-    write_tables_and_figures,
-)
+from .report import _fmt, _value, mean_se, write_tables_and_figures
+from .report_lines import _LISTED, floor_text, phantom_name, rerun_lines, round_off_lines, smallest_reference
 
 __all__ = ["adaptive_summary", "paired_difference", "write_adaptive_outputs"]
-
-#: Excluded phantoms named in ``report.txt``; ``results.csv`` has every failed row.
-_LISTED = 10
 
 
 def adaptive_summary(study: Study, run: AdaptiveRun) -> list[dict]:

@@ -27,15 +27,8 @@ from ..captions import counted
 from .config import Study
 from .multilevel import multilevel_estimate
 from .multilevel_sweep import MultilevelRun
-from .report import (
-    _fmt,
-    _value,
-    failed_lines,
-    floor_text,
-    round_off_lines,
-    smallest_reference,
-    write_tables_and_figures,
-)
+from .report import _fmt, _value, write_tables_and_figures
+from .report_lines import failed_lines, floor_text, round_off_lines, smallest_reference
 
 __all__ = ["model_seconds", "multilevel_summary", "paired_difference", "write_multilevel_outputs"]
 

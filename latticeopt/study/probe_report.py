@@ -32,7 +32,8 @@ from . import plots  # at import, as in .report (matplotlib only when figures ar
 from ._rows import _by_design, _names, _value
 from .config import Study
 from .phantoms import uniformity, worst_to_best
-from .report import _first_line, _layout_legend, results_rows, write_csv
+from .report import _layout_legend, results_rows, write_csv
+from .report_lines import _first_line
 from .store import Evaluation
 
 __all__ = ["probe_maps", "probe_rows", "probe_summary", "write_probe_outputs"]
