@@ -32,6 +32,12 @@ __all__ = ["BACKENDS", "blas_threads", "dask_client", "run_tasks"]
 BACKENDS = ("local", "dask")
 #: Tasks kept in flight per worker: one running, one queued so the worker never waits for the parent.
 _INFLIGHT_PER_WORKER = 2
+#: What loky says when it replaces a worker whose memory grew 300 MB past its size after its first task while
+#: tasks were queued. A sweep worker keeps the last design's model (:mod:`latticeopt.study.worker`), which can
+#: outgrow that (a fine-level model after a coarse one): loky's guard then starts a fresh worker, no task is lost,
+#: and the new worker builds the model again (a few seconds; 11 replacements in the paper map's 2 h fine pass).
+#: That is routine, not a fault to warn about.
+_LOKY_REPLACED_WORKER = "A worker stopped while some jobs were given to the executor"
 _BLAS_GETTERS = ("scipy_openblas_get_num_threads64_", "scipy_openblas_get_num_threads", "openblas_get_num_threads64_",
                  "openblas_get_num_threads", "MKL_Get_Max_Threads", "omp_get_max_threads")
 
@@ -156,6 +162,8 @@ def run_tasks(fn, tasks, *, backend: str = "local", jobs: int = 1, scheduler=Non
             stack.enter_context(joblib.parallel_config(backend="dask", client=client))
         else:
             n = jobs
+            # loky's manager thread warns in this process; one filter, replaced (not stacked) on every call
+            warnings.filterwarnings("ignore", message=_LOKY_REPLACED_WORKER, category=UserWarning)
             stack.enter_context(joblib.parallel_config(backend="loky", inner_max_num_threads=1,
                                                        initializer=_worker_init, initargs=(_environment_key(),),
                                                        max_nbytes=None))
