@@ -7,7 +7,8 @@ attempt (depths, iterations, seconds, outcome) and every Newton iteration's line
 
 Meshes: ``paper`` (the paper map's: 2 mm grid, 2 channel cells, no electrode edge lines) or ``default``
 (``MeshSettings()``). Mechanics only (no electrics). Per attempt: the depths, Newton iterations, seconds, the
-outcome and, per iteration with ``--iterations``, the free residual, the line search's step length ``alpha``
+outcome and, per iteration with ``--iterations``, the free residual (N, and as a multiple of the norm of the
+reaction forces at the step's start), the line search's step length ``alpha``
 (the accepted fraction of the Newton increment), the energy change and the factorization's diagonal shift. The
 summary gives the whole solve and the time and work from the end of the last accepted load step to the error.
 """
@@ -70,11 +71,12 @@ def main(argv=None) -> None:
         try:
             ev_new, u_new = line_search(u, du, ev, has_jump, isD)
         except Exception:
-            iters.append((float(np.linalg.norm(ev.residual_N[~isD])), 0.0, np.nan, solver._shift))
+            iters.append((float(np.linalg.norm(ev.residual_N[~isD])), 0.0, np.nan, solver._shift,
+                          float(np.linalg.norm(ev.residual_N[isD]))))
             raise
         step = float(np.linalg.norm(u_new.ravel() - u.ravel())) / max(float(np.linalg.norm(du)), 1e-300)
         iters.append((float(np.linalg.norm(ev.residual_N[~isD])), step, ev_new.energy_Nmm - ev.energy_Nmm,
-                      solver._shift))
+                      solver._shift, float(np.linalg.norm(ev.residual_N[isD]))))
         return ev_new, u_new
 
     def traced_newton(u, ev, cons, lam, final=True):
@@ -98,8 +100,10 @@ def main(argv=None) -> None:
                   f"{row['newton']} Newton, {row['seconds']:.1f} s, residual {row['residual']:.3g} N {row['why']}",
                   flush=True)
             if args.iterations:
-                for k, (r, a, dE, sh) in enumerate(row["iters"]):
-                    print(f"      it {k}: |R| {r:.3g} N, alpha {a:.3g}, dE {dE:.3g} Nmm, shift {sh:g}")
+                reaction = max(row["iters"][0][4], 1e-300) if row["iters"] else np.nan
+                for k, (r, a, dE, sh, _) in enumerate(row["iters"]):
+                    print(f"      it {k}: |R| {r:.3g} N ({r / reaction:.3g} x the step's start reaction), "
+                          f"alpha {a:.3g}, dE {dE:.3g} Nmm, shift {sh:g}")
 
     solver._newton, solver._line_search = traced_newton, traced_line_search
     t_start = time.perf_counter()

@@ -274,6 +274,16 @@ def test_a_press_that_fails_twice_at_its_depth_still_converges(stack_mesh, stack
     assert res.forces_N[0] == pytest.approx(ref.forces_N[0], rel=1e-4)
 
 
+def test_load_steps_that_add_up_to_the_depth_end_on_it(stack_mesh):
+    """1.5 mm in steps of at most 0.25 mm is 6 steps, the last one to the final depth at the final tolerance.
+    In floating point six steps of 1/6 of the depth end 1e-16 short of it, and there was a seventh step of
+    1e-16 mm (the sixth then solved only to the intermediate tolerance)."""
+    res = IndentationSolver(stack_mesh, IndentSettings(max_step_mm=0.25)).solve([(25, 25, 7.5, 1.5)])
+    assert res.load_steps == 6 and res.step_halvings == 0, res.residual_norms
+    one_step = IndentationSolver(stack_mesh, IndentSettings(max_step_mm=1.5)).solve([(25, 25, 7.5, 1.5)])
+    assert res.forces_N[0] == pytest.approx(one_step.forces_N[0], rel=1e-5)
+
+
 def test_a_stalling_gmres_increment_is_replaced_by_a_fresh_factorization(stack_mesh, stack_solver):
     """GMRES increments that barely lower the residual (here cut to a twentieth, as the shifted system of an
     older factorization does on deep presses) are followed by an exact Newton step: the press converges to the

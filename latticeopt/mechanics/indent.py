@@ -73,6 +73,8 @@ TARGET_FAILURES = 3
 # iteration refactorizes. A press whose GMRES iterates keep converging follows exactly the path it did before.
 _STALL_ITERATES = 2
 _STALL_RATIO = 0.9
+# load factors this close to 1 are the final depth (a relative 1e-9 of it: far below any load step)
+_ROUND_OFF = 1e-9
 
 
 class IndentationSolver(TangentSolves):
@@ -184,7 +186,11 @@ class IndentationSolver(TangentSolves):
         stuck = 0  # failed steps since the last accepted one
         failed_at: dict[float, int] = {}  # failed attempts per target load factor
         while lam < 1.0 and d_max > 0:
-            lam_new = min(1.0, lam + dlam)
+            # increments (1 / n of the depth, or halves of what was left) add up to the final depth only to
+            # round-off: a step ending that close to it is the final step, to be solved to ``rtol``. Before, it was
+            # an intermediate step (``step_rtol``) followed by a step of 1e-16 mm that had to polish it and, should
+            # that fail, gave up at once, the next increment being below ``min_step_mm``
+            lam_new = 1.0 if lam + dlam > 1.0 - _ROUND_OFF else lam + dlam
             active = [a.copy() for a in cons.active]
             try:
                 # the step starts from the last converged state; Newton applies the prescribed increment
