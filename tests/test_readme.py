@@ -71,6 +71,16 @@ def test_the_figures_redrawn_from_tables_read_every_design():
                                                                          "n": 280, "n_fine": 15}
 
 
+def test_every_value_with_an_se_in_the_readme_is_one_the_results_page_reports():
+    """The README quotes results (a mean or a paired difference with its SE) from docs/results.md; a re-run map
+    that updates the page and not the README (or the reverse) leaves a pair found on one side only."""
+    readme = (ROOT / "README.md").read_text()
+    results = (ROOT / "docs" / "results.md").read_text()
+    quoted = set(re.findall(r"\d\.\d+ ± \d\.\d+", readme))
+    assert quoted, "the README quotes no value with its SE"
+    assert not sorted(q for q in quoted if q not in results)
+
+
 def test_the_paired_differences_script_computes_nothing(tmp_path, capsys):
     """docs/paper_map_paired.py reads a finished map; on a store that lacks evaluations it stops at once with a
     message (exit 2) instead of running the sweep, and leaves the folder as it was."""
