@@ -276,8 +276,8 @@ def test_a_press_that_fails_twice_at_its_depth_still_converges(stack_mesh, stack
 
 def test_load_steps_that_add_up_to_the_depth_end_on_it(stack_mesh):
     """1.5 mm in steps of at most 0.25 mm is 6 steps, the last one to the final depth at the final tolerance.
-    In floating point six steps of 1/6 of the depth end 1e-16 short of it, and there was a seventh step of
-    1e-16 mm (the sixth then solved only to the intermediate tolerance)."""
+    In floating point six steps of 1/6 of the depth end 1e-16 short of it: that must not add a seventh step of
+    1e-16 mm (with the sixth solved only to the intermediate tolerance)."""
     res = IndentationSolver(stack_mesh, IndentSettings(max_step_mm=0.25)).solve([(25, 25, 7.5, 1.5)])
     assert res.load_steps == 6 and res.step_halvings == 0, res.residual_norms
     one_step = IndentationSolver(stack_mesh, IndentSettings(max_step_mm=1.5)).solve([(25, 25, 7.5, 1.5)])

@@ -187,9 +187,8 @@ class IndentationSolver(TangentSolves):
         failed_at: dict[float, int] = {}  # failed attempts per target load factor
         while lam < 1.0 and d_max > 0:
             # increments (1 / n of the depth, or halves of what was left) add up to the final depth only to
-            # round-off: a step ending that close to it is the final step, to be solved to ``rtol``. Before, it was
-            # an intermediate step (``step_rtol``) followed by a step of 1e-16 mm that had to polish it and, should
-            # that fail, gave up at once, the next increment being below ``min_step_mm``
+            # round-off: a step ending that close to it is the final step, solved to ``rtol``; otherwise a step of
+            # 1e-16 mm would follow it, whose failure could not be halved (below ``min_step_mm``)
             lam_new = 1.0 if lam + dlam > 1.0 - _ROUND_OFF else lam + dlam
             active = [a.copy() for a in cons.active]
             try:
