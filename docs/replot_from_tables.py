@@ -1,6 +1,6 @@
 """Re-draw the figures of runs too long to repeat from the tables of ``docs/results.md`` that summarize them.
 
-The paper maps (two-level, 3.5-5 h each on 2 cores) and the 12-phantom layout study (70 min) are not re-run
+The paper maps (two-level, about 3 h each on 2 cores) and the 12-phantom layout study (70 min) are not re-run
 to change a title: their means, standard errors and fine counts are in the results tables, at the four digits
 the tables give. This script reads those tables and draws the figures with the sweep's own plotting code, so
 they name layout, mesh and phantom count like a fresh sweep's figures::
@@ -40,9 +40,17 @@ def _cell(text: str, n: int) -> dict:
     return out
 
 
-def paper_map(text: str, anchor: str, overrides: list[str], n: int, stem: str) -> None:
+#: The paper maps' figures: (the heading or lead-in of the table's section, the table's header, the study's
+#: overrides, the figures' file stem). Both draw the runs with the default two-level plan, the ones the README quotes.
+_DEFAULT_PLAN = "| t \\ w (mm), default plan |"
+MAPS = (("#### The same map with the default plan (depth parts)", _DEFAULT_PLAN, [], "paper_fig4"),
+        ("**The same map with the default plan (depth parts).**", _DEFAULT_PLAN, ["design.rim=channel"],
+         "paper_fig4_rim"))
+
+
+def paper_map(text: str, anchor: str, header: str, overrides: list[str], n: int, stem: str) -> None:
     section = text[text.index(anchor):]
-    rows = _table(section, "| t \\ w (mm) |")
+    rows = _table(section, header)
     values = {(float(r[0]), w): _cell(c, n) for r in rows for w, c in zip((0, 2, 3, 4, 5, 6), r[1:])}
     study = load_study(STUDIES / "paper_fig4.toml", ["multilevel.pilot=15", *overrides])
     summary = [values[(d.thickness_mm, d.width_mm)] for d in study.designs]
@@ -64,8 +72,8 @@ def layouts(text: str) -> None:
 
 def main() -> None:
     text = (DOCS / "results.md").read_text()
-    paper_map(text, "### The paper map: 30 designs", [], 300, "paper_fig4")
-    paper_map(text, "### The paper map with the rim channel", ["design.rim=channel"], 300, "paper_fig4_rim")
+    for anchor, header, overrides, stem in MAPS:
+        paper_map(text, anchor, header, overrides, 300, stem)
     layouts(text)
 
 
