@@ -8,7 +8,7 @@ attempt (depths, iterations, seconds, outcome) and every Newton iteration's line
 Meshes: ``paper`` (the paper map's: 2 mm grid, 2 channel cells, no electrode edge lines) or ``default``
 (``MeshSettings()``). Mechanics only (no electrics). Per attempt: the depths, Newton iterations, seconds, the
 outcome and, per iteration with ``--iterations``, the free residual (N, and as a multiple of the norm of the
-reaction forces at the step's start), the line search's step length ``alpha``
+reaction forces at the step's start), the iterate's own reaction norm, the line search's step length ``alpha``
 (the accepted fraction of the Newton increment), the energy change and the factorization's diagonal shift. The
 summary gives the whole solve and the time and work from the end of the last accepted load step to the error.
 """
@@ -101,9 +101,9 @@ def main(argv=None) -> None:
                   flush=True)
             if args.iterations:
                 reaction = max(row["iters"][0][4], 1e-300) if row["iters"] else np.nan
-                for k, (r, a, dE, sh, _) in enumerate(row["iters"]):
+                for k, (r, a, dE, sh, rD) in enumerate(row["iters"]):
                     print(f"      it {k}: |R| {r:.3g} N ({r / reaction:.3g} x the step's start reaction), "
-                          f"alpha {a:.3g}, dE {dE:.3g} Nmm, shift {sh:g}")
+                          f"reaction {rD:.3g} N, alpha {a:.3g}, dE {dE:.3g} Nmm, shift {sh:g}")
 
     solver._newton, solver._line_search = traced_newton, traced_line_search
     t_start = time.perf_counter()
