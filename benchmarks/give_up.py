@@ -9,7 +9,8 @@ Meshes: ``paper`` (the paper map's: 2 mm grid, 2 channel cells, no electrode edg
 (``MeshSettings()``). Mechanics only (no electrics). Per attempt: the depths, Newton iterations, seconds, the
 outcome and, per iteration with ``--iterations``, the free residual (N, and as a multiple of the norm of the
 reaction forces at the step's start), the iterate's own reaction norm, the line search's step length ``alpha``
-(the accepted fraction of the Newton increment), the energy change and the factorization's diagonal shift. The
+(the accepted fraction of the Newton increment), the energy change, the smallest det F of the accepted iterate
+(of the start, where the line search failed) and the factorization's diagonal shift. The
 summary gives the whole solve and the time and work from the end of the last accepted load step to the error.
 """
 
@@ -72,11 +73,11 @@ def main(argv=None) -> None:
             ev_new, u_new = line_search(u, du, ev, has_jump, isD)
         except Exception:
             iters.append((float(np.linalg.norm(ev.residual_N[~isD])), 0.0, np.nan, solver._shift,
-                          float(np.linalg.norm(ev.residual_N[isD]))))
+                          float(np.linalg.norm(ev.residual_N[isD])), ev.min_J))
             raise
         step = float(np.linalg.norm(u_new.ravel() - u.ravel())) / max(float(np.linalg.norm(du)), 1e-300)
         iters.append((float(np.linalg.norm(ev.residual_N[~isD])), step, ev_new.energy_Nmm - ev.energy_Nmm,
-                      solver._shift, float(np.linalg.norm(ev.residual_N[isD]))))
+                      solver._shift, float(np.linalg.norm(ev.residual_N[isD])), ev_new.min_J))
         return ev_new, u_new
 
     def traced_newton(u, ev, cons, lam, final=True):
@@ -101,9 +102,9 @@ def main(argv=None) -> None:
                   flush=True)
             if args.iterations:
                 reaction = max(row["iters"][0][4], 1e-300) if row["iters"] else np.nan
-                for k, (r, a, dE, sh, rD) in enumerate(row["iters"]):
+                for k, (r, a, dE, sh, rD, J) in enumerate(row["iters"]):
                     print(f"      it {k}: |R| {r:.3g} N ({r / reaction:.3g} x the step's start reaction), "
-                          f"reaction {rD:.3g} N, alpha {a:.3g}, dE {dE:.3g} Nmm, shift {sh:g}")
+                          f"reaction {rD:.3g} N, alpha {a:.3g}, dE {dE:.3g} Nmm, min det F {J:.3g}, shift {sh:g}")
 
     solver._newton, solver._line_search = traced_newton, traced_line_search
     t_start = time.perf_counter()
