@@ -40,17 +40,17 @@ def _cell(text: str, n: int) -> dict:
     return out
 
 
-#: The paper maps' figures: (the heading or lead-in of the table's section, the table's header, the study's
-#: overrides, the figures' file stem). Both draw the runs with the default two-level plan, the ones the README quotes.
-_DEFAULT_PLAN = "| t \\ w (mm), default plan |"
-MAPS = (("#### The same map with the default plan (depth parts)", _DEFAULT_PLAN, [], "paper_fig4"),
-        ("**The same map with the default plan (depth parts).**", _DEFAULT_PLAN, ["design.rim=channel"],
-         "paper_fig4_rim"))
+#: The paper maps' figures draw the runs with the default two-level plan (the ones the README quotes): the header
+#: of their tables, and per map the heading or lead-in of the table's section, the study's overrides and the
+#: figures' file stem.
+MAP_HEADER = "| t \\ w (mm), default plan |"
+MAPS = (("#### The same map with the default plan (depth parts)", [], "paper_fig4"),
+        ("**The same map with the default plan (depth parts).**", ["design.rim=channel"], "paper_fig4_rim"))
 
 
-def paper_map(text: str, anchor: str, header: str, overrides: list[str], n: int, stem: str) -> None:
+def paper_map(text: str, anchor: str, overrides: list[str], n: int, stem: str) -> None:
     section = text[text.index(anchor):]
-    rows = _table(section, header)
+    rows = _table(section, MAP_HEADER)
     values = {(float(r[0]), w): _cell(c, n) for r in rows for w, c in zip((0, 2, 3, 4, 5, 6), r[1:])}
     study = load_study(STUDIES / "paper_fig4.toml", ["multilevel.pilot=15", *overrides])
     summary = [values[(d.thickness_mm, d.width_mm)] for d in study.designs]
@@ -72,8 +72,8 @@ def layouts(text: str) -> None:
 
 def main() -> None:
     text = (DOCS / "results.md").read_text()
-    for anchor, header, overrides, stem in MAPS:
-        paper_map(text, anchor, header, overrides, 300, stem)
+    for anchor, overrides, stem in MAPS:
+        paper_map(text, anchor, overrides, 300, stem)
     layouts(text)
 
 
