@@ -10,8 +10,10 @@ Meshes: ``paper`` (the paper map's: 2 mm grid, 2 channel cells, no electrode edg
 outcome and, per iteration with ``--iterations``, the free residual (N, and as a multiple of the norm of the
 reaction forces at the step's start), the iterate's own reaction norm, the line search's step length ``alpha``
 (the accepted fraction of the Newton increment), the energy change, the smallest det F of the accepted iterate
-(of the start, where the line search failed) and the factorization's diagonal shift. The
-summary gives the whole solve and the time and work from the end of the last accepted load step to the error.
+(of the start, where the line search failed) and the factorization's diagonal shift; per attempt, how long
+its residual stalled: iterations without a new smallest residual, counted from its largest (past the rise while
+the increment is applied), at the attempt's end and longest. The summary gives the whole solve and the time
+and work from the end of the last accepted load step to the error.
 """
 
 from __future__ import annotations
@@ -35,6 +37,17 @@ from latticeopt.mesh import mesh_design  # noqa: E402
 
 MESHES = {"paper": MeshSettings(size_mm=2.0, channel_cells=2, layer_cells=2, electrode_edges=False),
           "default": MeshSettings()}
+
+
+def stall(norms) -> tuple[int, int]:
+    """Iterations without a new smallest residual in ``norms`` after its largest: (at the end, longest run)."""
+    if not norms:
+        return 0, 0
+    best, run, longest = np.inf, 0, 0
+    for r in norms[int(np.argmax(norms)):]:
+        run = 0 if r < best else run + 1
+        best, longest = min(best, r), max(longest, run)
+    return run, longest
 
 
 def main(argv=None) -> None:
@@ -97,9 +110,10 @@ def main(argv=None) -> None:
         finally:
             row.update(seconds=time.perf_counter() - t, newton=solver._n_solves - n0, iters=list(iters))
             attempts.append(row)
+            end, longest = stall([it[0] for it in row["iters"]])
             print(f"  {'ok    ' if row['ok'] else 'FAILED'} {row['from_mm']:.4f} -> {row['to_mm']:.4f} mm: "
-                  f"{row['newton']} Newton, {row['seconds']:.1f} s, residual {row['residual']:.3g} N {row['why']}",
-                  flush=True)
+                  f"{row['newton']} Newton, {row['seconds']:.1f} s, residual {row['residual']:.3g} N "
+                  f"{row['why'] + '; ' if row['why'] else ''}stalled {end} at the end (longest {longest})", flush=True)
             if args.iterations:
                 reaction = max(row["iters"][0][4], 1e-300) if row["iters"] else np.nan
                 for k, (r, a, dE, sh, rD, J) in enumerate(row["iters"]):
