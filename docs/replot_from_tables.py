@@ -44,8 +44,8 @@ def _cell(text: str, n: int) -> dict:
 #: of their tables, and per map the heading or lead-in of the table's section, the study's overrides and the
 #: figures' file stem.
 MAP_HEADER = "| t \\ w (mm), default plan |"
-MAPS = (("#### The same map with the default plan (depth parts)", [], "paper_fig4"),
-        ("**The same map with the default plan (depth parts).**", ["design.rim=channel"], "paper_fig4_rim"))
+MAPS = (("### The paper map: 30 designs x 300 phantoms, two-level", [], "paper_fig4"),
+        ("### The paper map with the rim channel", ["design.rim=channel"], "paper_fig4_rim"))
 
 
 def paper_map(text: str, anchor: str, overrides: list[str], n: int, stem: str) -> None:
