@@ -4,6 +4,8 @@ attempt (depths, iterations, seconds, outcome) and every Newton iteration's line
     python benchmarks/give_up.py --design 2:1 --touch 50,50,7.5,8.9         # paper mesh: cannot converge
     python benchmarks/give_up.py --design 2:1 --phantom 1:95 --iterations   # a deep press that converges
     python benchmarks/give_up.py --mesh default --design 4:3 --touch 50,50,7.5,8.9 --physics KEY=VALUE
+    python benchmarks/give_up.py --mesh default --pattern hexagonal --design 1.1:3 \
+        --touch 8.0108,13.0568,7.2240,4.5004 --touch 53.1726,50.1997,8.5922,1.7555   # 2:9 of the layout optimizer
 
 Meshes: ``paper`` (the paper map's: 2 mm grid, 2 channel cells, no electrode edge lines) or ``default``
 (``MeshSettings()``). Mechanics only (no electrics). Per attempt: the depths, Newton iterations, seconds, the
@@ -53,6 +55,7 @@ def stall(norms) -> tuple[int, int]:
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--design", default="2:1", help="W:T (mm)")
+    ap.add_argument("--pattern", default="square", help="the lattice's pattern (LatticeDesign.pattern)")
     ap.add_argument("--mesh", default="paper", choices=sorted(MESHES))
     ap.add_argument("--touch", action="append", default=[], metavar="X,Y,R,D", help="a touch (mm); repeatable")
     ap.add_argument("--phantom", help="a paper phantom K:I (benchmarks/deep_presses.py) instead of --touch")
@@ -72,7 +75,8 @@ def main(argv=None) -> None:
     physics = physics_settings(args)
     w, t = (float(x) for x in args.design.split(":"))
     t0 = time.perf_counter()
-    mesh = mesh_design(LatticeDesign(width_mm=w, thickness_mm=t, pitch_mm=12.5), MESHES[args.mesh])
+    design = LatticeDesign(width_mm=w, thickness_mm=t, pitch_mm=12.5, pattern=args.pattern)
+    mesh = mesh_design(design, MESHES[args.mesh])
     solver = IndentationSolver(mesh, physics.indent_settings())
     print(f"design {args.design}, {args.mesh} mesh: {mesh.n_nodes} nodes, {solver.op.n_dofs} dofs; mesh and set-up "
           f"{time.perf_counter() - t0:.1f} s; max_newton {solver.settings.max_newton}; touches {touches}", flush=True)
