@@ -5,7 +5,7 @@ attempt (depths, iterations, seconds, outcome) and every Newton iteration's line
     python benchmarks/give_up.py --design 2:1 --phantom 1:95 --iterations   # a deep press that converges
     python benchmarks/give_up.py --mesh default --design 4:3 --touch 50,50,7.5,8.9 --physics KEY=VALUE
     python benchmarks/give_up.py --mesh default --pattern hexagonal --design 1.1:3 \
-        --touch 8.0108,13.0568,7.2240,4.5004 --touch 53.1726,50.1997,8.5922,1.7555   # 2:9 of the layout optimizer
+        --touch 8.0108,13.0568,7.2240,4.5004 --touch 53.1726,50.1997,8.5922,1.7555   # ~ the optimizer's 2:9
 
 Meshes: ``paper`` (the paper map's: 2 mm grid, 2 channel cells, no electrode edge lines) or ``default``
 (``MeshSettings()``). Mechanics only (no electrics). Per attempt: the depths, Newton iterations, seconds, the
