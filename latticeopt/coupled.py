@@ -52,7 +52,7 @@ from .electrics.forward import (
 )
 from .errors import MeshError, ParameterError
 from .mechanics.indent import IndentationSolver, IndentSettings
-from .mechanics.indenters import IN_PLANE, INDENTERS, PUNCH_EDGES
+from .mechanics.indenters import IN_PLANE, INDENTERS, PUNCH_EDGES, check_edge_radius
 from .mechanics.materials import Materials, NeoHookean
 from .mesh import MeshSettings, mesh_design
 from .mesh.transfer import interpolation_matrix
@@ -76,6 +76,9 @@ class PhysicsSettings:
         Flat punch contact: ``"bonded"`` (no slip) or ``"frictionless"``.
     punch_edge
         Flat punch rim: ``"conforming"`` (top nodes moved onto the rim, default) or ``"nodal"``; see
+        :class:`latticeopt.mechanics.IndentSettings`.
+    edge_radius_mm
+        Flat punch: radius of its rounded rim (mm, 0 to 20; 0 default: a sharp edge); see
         :class:`latticeopt.mechanics.IndentSettings`.
     silicone_shear_kPa, hydrogel_shear_kPa
         Initial shear moduli (kPa); sources in :mod:`latticeopt.mechanics.materials`.
@@ -110,6 +113,7 @@ class PhysicsSettings:
     indenter: str = "flat"
     in_plane: str = "bonded"
     punch_edge: str = "conforming"
+    edge_radius_mm: float = 0.0
     silicone_shear_kPa: float = _SILICONE.shear_modulus_kPa
     hydrogel_shear_kPa: float = _GEL.shear_modulus_kPa
     hydrogel_poisson_ratio: float = _GEL.poisson_ratio
@@ -132,6 +136,7 @@ class PhysicsSettings:
         set_(self, "indenter", v.choice("indenter", self.indenter, INDENTERS))
         set_(self, "in_plane", v.choice("in_plane", self.in_plane, IN_PLANE))
         set_(self, "punch_edge", v.choice("punch_edge", self.punch_edge, PUNCH_EDGES))
+        set_(self, "edge_radius_mm", check_edge_radius(self.edge_radius_mm, self.indenter))
         for name in ("sigma_S_per_m", "current_A"):
             set_(self, name, v.real(name, getattr(self, name), lo=0, lo_open=True))
         set_(self, "mechanics_rtol", v.real("mechanics_rtol", self.mechanics_rtol, lo=0, lo_open=True, hi=1e-1))
@@ -185,7 +190,8 @@ class PhysicsSettings:
         materials = Materials(silicone=NeoHookean(self.silicone_shear_kPa, self.silicone_poisson_ratio),
                               hydrogel=NeoHookean(self.hydrogel_shear_kPa, self.hydrogel_poisson_ratio))
         return IndentSettings(materials=materials, indenter=self.indenter, in_plane=self.in_plane,
-                              punch_edge=self.punch_edge, rtol=self.mechanics_rtol)
+                              punch_edge=self.punch_edge, edge_radius_mm=self.edge_radius_mm,
+                              rtol=self.mechanics_rtol)
 
     def as_dict(self) -> dict:
         return dataclasses.asdict(self)

@@ -23,3 +23,46 @@ def test_sphere_presses_less_than_the_flat_punch_and_only_pushes(stack_mesh, sta
     deeper = sphere.solve([(25, 25, 7.5, 2.5)])
     assert deeper.forces_N[0] > res.forces_N[0]
     assert deeper.solver["contact_nodes"][0] >= res.solver["contact_nodes"][0]
+
+
+def test_a_punch_rounded_all_the_way_in_is_the_sphere(stack_mesh):
+    # the rounded rim's profile with e = r is the hemisphere's: the same contact problem, node for node
+    sphere = IndentationSolver(stack_mesh, IndentSettings(indenter="sphere")).solve([(25, 25, 7.5, 2.0)])
+    rounded = IndentationSolver(stack_mesh, IndentSettings(edge_radius_mm=7.5)).solve([(25, 25, 7.5, 2.0)])
+    assert rounded.forces_N == pytest.approx(sphere.forces_N, rel=1e-9)
+    assert np.abs(rounded.displacement_mm - sphere.displacement_mm).max() < 1e-9
+
+
+@pytest.mark.parametrize("edge_mm", [1.0, 3.0])
+def test_rounded_edge_contact_is_unilateral_and_softer_than_the_sharp_punch(stack_mesh, stack_solver, edge_mm):
+    touch = (25, 25, 7.5, 2.0)
+    sharp = stack_solver.solve([touch])
+    res = IndentationSolver(stack_mesh, IndentSettings(edge_radius_mm=edge_mm)).solve([touch])
+    assert 0 < res.forces_N[0] < sharp.forces_N[0]  # less material under the punch is pushed the full depth
+    # KKT of the contact under the rounding, checked on the result: no top node inside the disc lies above the
+    # punch's surface, and those it holds (on the surface) are pushed down, never pulled
+    ref = res.deformed_mesh.nodes_mm - res.displacement_mm
+    top = np.unique(stack_mesh.facets["top"])
+    rho = np.hypot(ref[top, 0] - 25, ref[top, 1] - 25)
+    inside = top[rho <= 7.5]
+    r_in = rho[rho <= 7.5]
+    beyond = np.maximum(r_in - (7.5 - edge_mm), 0.0)
+    surface = -(2.0 - (edge_mm - np.sqrt(edge_mm ** 2 - beyond ** 2)))  # the punch's u_z above each node
+    assert np.all(res.displacement_mm[inside, 2] <= surface + 1e-9)
+    held = res.state.contact_nodes[0]
+    assert np.isin(inside[beyond == 0], held).all()  # the flat face holds all its nodes
+    curved = np.intersect1d(held, inside[beyond > 0])
+    assert len(curved)  # the rounding touches
+    on = np.isin(inside, curved)
+    assert np.abs(res.displacement_mm[inside[on], 2] - surface[on]).max() < 1e-9
+    R = res.state.evaluation.residual_N
+    assert np.all(-R[3 * curved + 2] >= -1e-6 * res.forces_N[0])
+
+
+def test_edge_radius_is_checked():
+    from latticeopt.errors import ParameterError
+
+    with pytest.raises(ParameterError, match="edge_radius_mm.*-1"):
+        IndentSettings(edge_radius_mm=-1)
+    with pytest.raises(ParameterError, match="only the flat punch"):
+        IndentSettings(indenter="sphere", edge_radius_mm=1.0)

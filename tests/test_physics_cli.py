@@ -24,6 +24,7 @@ COARSE = ["--sensor-size", "50", "--size", "5", "--no-cache"]
     ("silicone_poisson_ratio=high", ["--physics silicone_poisson_ratio", "0 <= silicone_poisson_ratio", "'high'"]),
     ("poisson_ratio=0.49", ["--physics poisson_ratio", "hydrogel_poisson_ratio", "got 'poisson_ratio'"]),
     ("indenter=cone", ["--physics indenter", "'flat', 'sphere'", "'cone'"]),
+    ("edge_radius_mm=-1", ["--physics edge_radius_mm", "0 <= edge_radius_mm <= 20", "got -1"]),
     ("conductivity_law=bogus", ["--physics conductivity_law", "'geometry', 'linear', 'power'", "'bogus'"]),
     ("0.4999", ["--physics", "KEY=VALUE", "'0.4999'"]),
 ])

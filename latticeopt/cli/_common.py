@@ -86,6 +86,9 @@ def add_touch_args(group) -> None:
     group.add_argument("--punch-edge", choices=PUNCH_EDGES, default=d.punch_edge,
                        help="flat punch rim: top nodes moved onto it (conforming) or the nodes inside (nodal); "
                             f"default {d.punch_edge}")
+    group.add_argument("--edge-radius", type=float, default=d.edge_radius_mm, metavar="MM",
+                       help="flat punch: radius of its rounded rim in mm, 0-20 (default "
+                            f"{d.edge_radius_mm:g}: a sharp edge)")
 
 
 def touches_from_args(args: argparse.Namespace, design: LatticeDesign) -> tuple:

@@ -49,7 +49,8 @@ def run_indent(args) -> int:
     # the mechanics of the [physics] settings (materials, indenter); the standalone indentation keeps its own
     # tolerance unless --physics mechanics_rtol=... is given
     given = {"indenter": ("--indenter", args.indenter), "in_plane": ("--in-plane", args.in_plane),
-             "punch_edge": ("--punch-edge", args.punch_edge)}
+             "punch_edge": ("--punch-edge", args.punch_edge),
+             "edge_radius_mm": ("--edge-radius", args.edge_radius)}
     settings = physics_settings(args, given).indent_settings()
     extra = {} if args.max_step is None else {"max_step_mm": args.max_step}
     if "mechanics_rtol" not in physics_values(args):

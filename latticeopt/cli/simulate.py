@@ -61,7 +61,8 @@ def simulate_inputs(args):
     design = design_from_args(args)
     touches = touches_from_args(args, design)
     given = {"indenter": ("--indenter", args.indenter), "in_plane": ("--in-plane", args.in_plane),
-             "punch_edge": ("--punch-edge", args.punch_edge), "sigma_S_per_m": ("--sigma", args.sigma),
+             "punch_edge": ("--punch-edge", args.punch_edge),
+             "edge_radius_mm": ("--edge-radius", args.edge_radius), "sigma_S_per_m": ("--sigma", args.sigma),
              "contact_impedance_ohm_m2": ("--contact-impedance", args.contact_impedance)}
     return design, touches, physics_settings(args, given)
 

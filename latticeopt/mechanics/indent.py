@@ -34,6 +34,7 @@ every load step and every phantom of a mesh: :class:`IndentationSolver` holds it
 from __future__ import annotations
 
 import copy
+import dataclasses
 import logging
 import time
 
@@ -152,13 +153,17 @@ class IndentationSolver(TangentSolves):
         self._n_krylov = self._n_shifted = 0
         ref, self._op, ev = self.mesh.nodes_mm, self.op, self._ev0
         if s.indenter == "flat" and s.punch_edge == "conforming":
+            # the rim a bonded punch holds is its flat face's: inside the rounding, if any
+            faces = tuple(dataclasses.replace(t, radius_mm=t.radius_mm - s.edge_radius_mm) for t in touches
+                          if t.radius_mm > s.edge_radius_mm)
             ref = conform_punch_edges(self.mesh.nodes_mm, self.mesh.tets, self.mesh.facets["top"], self._movable,
-                                      touches)
+                                      faces)
         n_moved = int(np.count_nonzero(np.any(ref != self.mesh.nodes_mm, axis=1)))
         if n_moved:  # a new reference geometry: its own operator and undeformed tangent
             self._op = self.op.with_reference(ref)
             ev = self._evaluate(np.zeros_like(ref))
-        cons = Constraints(ref, self.top_nodes, self.bottom_nodes, touches, s.indenter, s.in_plane)
+        cons = Constraints(ref, self.top_nodes, self.bottom_nodes, touches, s.indenter, s.in_plane,
+                           s.edge_radius_mm)
         self._n_solves = self._n_factor = 0
         self._adjoint_factor = None
         self._factor_isD = None  # Dirichlet set of the current factorization (none yet for this phantom)
@@ -237,6 +242,7 @@ class IndentationSolver(TangentSolves):
                  "n_factorizations": self._n_factor, "shifted_factorizations": self._n_shifted,
                  "krylov_iterations": self._n_krylov, "precision": self.linear.precision, "method": s.method,
                  "volumetric": s.volumetric, "indenter": s.indenter, "in_plane": s.in_plane, "punch_edge": s.punch_edge,
+                 "edge_radius_mm": s.edge_radius_mm,
                  "moved_reference_nodes": n_moved, "contact_nodes": [int(len(n)) for n in cons.contact_nodes()]}
         D = cons.dirichlet(1.0)[0]
         state = Converged(op=self._op, evaluation=ev if ev.data is not None else self._evaluate(u), dofs=D,
@@ -282,9 +288,9 @@ class IndentationSolver(TangentSolves):
                 raise _StepFailed("non-finite residual", r_free, ev.min_J)
             tol = max(rtol * float(np.linalg.norm(R[isD])), s.atol_N)
             if not np.any(jump) and r_free <= tol:
-                if ev.data is None and (not final or s.indenter == "sphere"):
+                if ev.data is None and (not final or cons.has_contact):
                     ev = self._evaluate(u, tangent=True)  # the next step (or the contact update) needs it
-                if s.indenter == "flat" or not cons.update_active(u, R, lam, ev.data[self.op.diag_pos]):
+                if not cons.has_contact or not cons.update_active(u, R, lam, ev.data[self.op.diag_pos]):
                     return u, ev, norms
                 first = len(norms)  # the sphere's contact set changed: solve again, judging divergence afresh
                 continue

@@ -13,17 +13,25 @@ and V_rel converges under mesh refinement (README). It does not make results smo
 the design: a node joining the rim still moves them by a few percent. Only nodes of the silicone top layer
 move (never hydrogel nodes, so the electrics sees the mesh it was built on) and never nodes on the sensor's rim.
 
-Spherical tip (option): a hemispherical end of the same radius ``r``. Frictionless unilateral contact on
-the vertical displacement of the top nodes inside the disc: ``u_z <= ubar(rho) = -(lam d - (r - sqrt(r^2 -
-rho^2)))`` (gap measured vertically at the undeformed ``(x, y)``, a small-sliding approximation), with the
-active set found by a primal-dual active-set update inside Newton: a node is active while its contact
-force pushes down, inactive once it would pull.
+Rounded punch edge (option, ``edge_radius_mm = e > 0``): the punch's rim is a quarter torus of radius ``e``, so
+the flat face is the disc ``rho <= r - e`` and the top nodes there are held as above; the nodes under the rounding
+(``r - e < rho <= r``) touch it without friction (the unilateral contact below, profile ``g``). A real indenter's
+edge is rounded; the sharp edge (``e = 0``, default) is the limit, where a bonded punch shears the material under
+its rim by the whole depth.
+
+Spherical tip (option): a hemispherical end of the same radius ``r`` (the rounded punch with ``e = r``).
+Frictionless unilateral contact on the vertical displacement of the top nodes under the curved part:
+``u_z <= ubar(rho) = -(lam d - g(rho))``, ``g = e - sqrt(e^2 - (rho - (r - e))^2)`` beyond the flat face and 0 on it
+(gap measured vertically at the undeformed ``(x, y)``, a small-sliding approximation), with the active set found
+by a primal-dual active-set update inside Newton: a node is active while its contact force pushes down, inactive
+once it would pull.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from .. import _validate as v
 from ..errors import ParameterError
 from ..mesh.tetmesh import tet_volumes
 from ..touches import Touch, touch_name
@@ -31,6 +39,14 @@ from ..touches import Touch, touch_name
 INDENTERS = ("flat", "sphere")
 IN_PLANE = ("bonded", "frictionless")
 PUNCH_EDGES = ("conforming", "nodal")
+
+
+def check_edge_radius(edge_radius_mm, indenter: str, name: str = "edge_radius_mm") -> float:
+    """``edge_radius_mm`` validated (0 to 20 mm, and 0 for the sphere, which is rounded by its radius)."""
+    e = v.real(name, edge_radius_mm, lo=0.0, hi=20.0)
+    if e and indenter != "flat":
+        raise ParameterError(name, f"0 with indenter {indenter!r} (only the flat punch has an edge to round)", e)
+    return e
 
 
 def conform_punch_edges(nodes_mm: np.ndarray, tets: np.ndarray, top_tris: np.ndarray, movable: np.ndarray,
@@ -112,10 +128,13 @@ class Constraints:
     top_nodes, bottom_nodes : int arrays
     touches : tuple of Touch
     indenter, in_plane : see module docstring
+    edge_radius_mm : float
+        Flat punch: radius of its rounded rim (mm); 0: a sharp edge. A touch whose radius ``r`` is below it gets
+        ``e = r`` (a hemispherical tip).
     """
 
     def __init__(self, nodes_mm: np.ndarray, top_nodes: np.ndarray, bottom_nodes: np.ndarray,
-                 touches: tuple[Touch, ...], indenter: str, in_plane: str):
+                 touches: tuple[Touch, ...], indenter: str, in_plane: str, edge_radius_mm: float = 0.0):
         self.n_dofs = 3 * len(nodes_mm)
         self.indenter, self.in_plane = indenter, in_plane
         self.touches = touches
@@ -139,28 +158,37 @@ class Constraints:
             self.rho.append(score[sel] * t.radius_mm)
         self.bottom_dofs = (3 * bottom_nodes[:, None] + np.arange(3)).ravel()
         self.depth = np.array([t.depth_mm for t in touches])
-        # sphere: active flags per touch node (start from the geometric overlap, refined by PDAS)
+        # the radius of each indenter's curved part: the sphere is a punch rounded all the way in
+        self.edge = np.array([t.radius_mm if indenter == "sphere" else min(edge_radius_mm, t.radius_mm)
+                              for t in touches])
+        # nodes under the curved part touch it (unilateral); the flat face's nodes are held (none for the sphere)
+        # (a sharp edge has none: its nodes on the rim, at rho = r to round-off, are held)
+        self.rim = [((rho > t.radius_mm - e) & (e > 0)) | (e >= t.radius_mm)
+                    for rho, t, e in zip(self.rho, touches, self.edge)]
+        # contact flags per touch node (start from the geometric overlap, refined by PDAS)
         self.active = [np.zeros(len(n), dtype=bool) for n in self.nodes]
+        self.has_contact = any(r.any() for r in self.rim)
 
     # -- prescribed values ---------------------------------------------------------------------------
-    def _sphere_bound(self, i: int, lam: float) -> np.ndarray:
-        r = self.touches[i].radius_mm
-        return -(lam * self.depth[i] - (r - np.sqrt(np.maximum(r * r - self.rho[i] ** 2, 0.0))))
+    def _bound(self, i: int, lam: float) -> np.ndarray:
+        """Lowest ``u_z`` (mm) the indenter leaves each node of touch ``i`` at load factor ``lam``."""
+        e = self.edge[i]
+        beyond = np.maximum(self.rho[i] - (self.touches[i].radius_mm - e), 0.0)
+        return -(lam * self.depth[i] - (e - np.sqrt(np.maximum(e * e - beyond ** 2, 0.0))))
 
     def dirichlet(self, lam: float) -> tuple[np.ndarray, np.ndarray]:
         """Constrained DOFs (sorted, unique) and their prescribed displacement (mm) at load factor ``lam``."""
         dofs, vals = [self.bottom_dofs], [np.zeros(len(self.bottom_dofs))]
         for i, nodes in enumerate(self.nodes):
-            if self.indenter == "flat":
-                dofs.append(3 * nodes + 2)
-                vals.append(np.full(len(nodes), -lam * self.depth[i]))
-                if self.in_plane == "bonded":
-                    dofs += [3 * nodes, 3 * nodes + 1]
-                    vals += [np.zeros(len(nodes)), np.zeros(len(nodes))]
-            else:
-                act = self.active[i]
-                dofs.append(3 * nodes[act] + 2)
-                vals.append(self._sphere_bound(i, lam)[act])
+            held = nodes[~self.rim[i]]  # the flat face (none for the sphere)
+            dofs.append(3 * held + 2)
+            vals.append(np.full(len(held), -lam * self.depth[i]))
+            if self.in_plane == "bonded":
+                dofs += [3 * held, 3 * held + 1]
+                vals += [np.zeros(len(held)), np.zeros(len(held))]
+            act = self.rim[i] & self.active[i]
+            dofs.append(3 * nodes[act] + 2)
+            vals.append(self._bound(i, lam)[act])
         d, v = np.concatenate(dofs), np.concatenate(vals)
         order = np.argsort(d, kind="stable")
         d, v = d[order], v[order]
@@ -169,23 +197,21 @@ class Constraints:
 
     # -- contact -------------------------------------------------------------------------------------
     def start_step(self, u: np.ndarray, lam: float) -> None:
-        """Sphere: before a load step, activate every candidate node the indenter would penetrate."""
-        if self.indenter != "sphere":
-            return
+        """Curved contact: before a load step, activate every candidate node the indenter would penetrate."""
         for i, nodes in enumerate(self.nodes):
-            self.active[i] |= u[nodes, 2] > self._sphere_bound(i, lam) - 1e-12
+            self.active[i] |= self.rim[i] & (u[nodes, 2] > self._bound(i, lam) - 1e-12)
 
     def update_active(self, u: np.ndarray, residual: np.ndarray, lam: float, stiffness: np.ndarray) -> bool:
-        """Primal-dual active-set update (sphere); returns True if the set changed."""
-        if self.indenter != "sphere":
-            return False
+        """Primal-dual active-set update of the nodes under curved parts; returns True if the set changed."""
         changed = False
         for i, nodes in enumerate(self.nodes):
+            if not self.rim[i].any():
+                continue
             zdof = 3 * nodes + 2
             pressure = -residual[zdof]  # > 0 while the indenter pushes down on the node
             pressure[~self.active[i]] = 0.0
-            penetration = u[nodes, 2] - self._sphere_bound(i, lam)
-            new = pressure + stiffness[zdof] * penetration > 1e-12 * (1.0 + np.abs(pressure).max())
+            penetration = u[nodes, 2] - self._bound(i, lam)
+            new = self.rim[i] & (pressure + stiffness[zdof] * penetration > 1e-12 * (1.0 + np.abs(pressure).max()))
             if np.any(new != self.active[i]):
                 changed = True
                 self.active[i] = new
@@ -193,14 +219,8 @@ class Constraints:
 
     def forces_N(self, residual: np.ndarray) -> np.ndarray:
         """Force of every indenter (N), positive pushing down: minus the sum of the internal z-forces."""
-        out = []
-        for i, nodes in enumerate(self.nodes):
-            sel = nodes if self.indenter == "flat" else nodes[self.active[i]]
-            out.append(-float(residual[3 * sel + 2].sum()))
-        return np.asarray(out)
+        return np.asarray([-float(residual[3 * sel + 2].sum()) for sel in self.contact_nodes()])
 
     def contact_nodes(self) -> list[np.ndarray]:
-        """Top nodes held by each indenter (the active ones for the sphere)."""
-        if self.indenter == "flat":
-            return list(self.nodes)
-        return [n[a] for n, a in zip(self.nodes, self.active)]
+        """Top nodes held by each indenter: its flat face's and the active ones under its curved part."""
+        return [n[~r | a] for n, r, a in zip(self.nodes, self.rim, self.active)]

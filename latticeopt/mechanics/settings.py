@@ -12,7 +12,7 @@ from ..errors import ParameterError
 from ..linalg import BACKENDS, PRECISIONS
 from ..mesh.tetmesh import TetMesh
 from .assembly import VOLUMETRIC
-from .indenters import IN_PLANE, INDENTERS, PUNCH_EDGES
+from .indenters import IN_PLANE, INDENTERS, PUNCH_EDGES, check_edge_radius
 from .materials import Materials
 
 __all__ = ["DOUBLE_ABOVE_KAPPA_OVER_MU", "METHODS", "Converged", "IndentSettings", "IndentationResult"]
@@ -40,6 +40,11 @@ class IndentSettings:
         the solve, so results move continuously with the touch; see
         :func:`~latticeopt.mechanics.indenters.conform_punch_edges`) or ``"nodal"`` (the disc holds the top
         nodes inside it, a staircase of cells).
+    edge_radius_mm
+        Flat punch only: radius of the punch's rounded rim (mm, ``0 <= e <= 20``); 0 (default): a sharp edge. The
+        flat face ``rho <= r - e`` holds the top nodes as ``in_plane`` says, the rounding touches the nodes under
+        it without friction (:mod:`latticeopt.mechanics.indenters`); a touch narrower than ``e`` gets a
+        hemispherical tip. Its effect on V_rel and on deep presses: ``docs/verification.md``.
     volumetric
         ``"patch"`` (mean dilatation per hexahedral cell, locking-free, default) or ``"element"`` (plain P1).
     max_step_mm
@@ -101,6 +106,7 @@ class IndentSettings:
     in_plane: str = "bonded"
     punch_edge: str = "conforming"
     volumetric: str = "patch"
+    edge_radius_mm: float = 0.0
     max_step_mm: float = 1.0
     min_step_mm: float = 0.01
     max_newton: int | None = None
@@ -121,6 +127,7 @@ class IndentSettings:
         set_(self, "in_plane", v.choice("in_plane", self.in_plane, IN_PLANE))
         set_(self, "punch_edge", v.choice("punch_edge", self.punch_edge, PUNCH_EDGES))
         set_(self, "volumetric", v.choice("volumetric", self.volumetric, VOLUMETRIC))
+        set_(self, "edge_radius_mm", check_edge_radius(self.edge_radius_mm, self.indenter))
         set_(self, "backend", v.choice("backend", self.backend, BACKENDS))
         set_(self, "precision", v.choice("precision", self.precision, PRECISIONS + ("auto",)))
         set_(self, "max_step_mm", v.real("max_step_mm", self.max_step_mm, lo=0, lo_open=True))
