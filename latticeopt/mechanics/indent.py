@@ -292,7 +292,7 @@ class IndentationSolver(TangentSolves):
                     ev = self._evaluate(u, tangent=True)  # the next step (or the contact update) needs it
                 if not cons.has_contact or not cons.update_active(u, R, lam, ev.data[self.op.diag_pos]):
                     return u, ev, norms
-                first = len(norms)  # the sphere's contact set changed: solve again, judging divergence afresh
+                first = len(norms)  # the contact set changed: solve again, judging divergence afresh
                 continue
             if it == s.max_newton:
                 raise _StepFailed(f"no convergence in {s.max_newton} iterations", r_free, ev.min_J, tuple(norms))

@@ -161,8 +161,8 @@ class Constraints:
         # the radius of each indenter's curved part: the sphere is a punch rounded all the way in
         self.edge = np.array([t.radius_mm if indenter == "sphere" else min(edge_radius_mm, t.radius_mm)
                               for t in touches])
-        # nodes under the curved part touch it (unilateral); the flat face's nodes are held (none for the sphere)
-        # (a sharp edge has none: its nodes on the rim, at rho = r to round-off, are held)
+        # nodes under the curved part touch it (unilateral); the flat face's nodes are held (none for the sphere;
+        # all for a sharp edge, including its nodes on the rim, at rho = r to round-off)
         self.rim = [((rho > t.radius_mm - e) & (e > 0)) | (e >= t.radius_mm)
                     for rho, t, e in zip(self.rho, touches, self.edge)]
         # contact flags per touch node (start from the geometric overlap, refined by PDAS)
@@ -171,7 +171,8 @@ class Constraints:
 
     # -- prescribed values ---------------------------------------------------------------------------
     def _bound(self, i: int, lam: float) -> np.ndarray:
-        """Lowest ``u_z`` (mm) the indenter leaves each node of touch ``i`` at load factor ``lam``."""
+        """``u_z`` (mm) of the punch's surface above each node of touch ``i`` at load factor ``lam`` (a node in
+        contact has ``u_z <= `` it)."""
         e = self.edge[i]
         beyond = np.maximum(self.rho[i] - (self.touches[i].radius_mm - e), 0.0)
         return -(lam * self.depth[i] - (e - np.sqrt(np.maximum(e * e - beyond ** 2, 0.0))))
