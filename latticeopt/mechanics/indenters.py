@@ -136,7 +136,7 @@ class Constraints:
     def __init__(self, nodes_mm: np.ndarray, top_nodes: np.ndarray, bottom_nodes: np.ndarray,
                  touches: tuple[Touch, ...], indenter: str, in_plane: str, edge_radius_mm: float = 0.0):
         self.n_dofs = 3 * len(nodes_mm)
-        self.indenter, self.in_plane = indenter, in_plane
+        self.in_plane = in_plane
         self.touches = touches
         xy = nodes_mm[top_nodes, :2]
         # each top node goes to the touch it lies deepest inside (touching discs share no interior)
@@ -187,7 +187,7 @@ class Constraints:
             if self.in_plane == "bonded":
                 dofs += [3 * held, 3 * held + 1]
                 vals += [np.zeros(len(held)), np.zeros(len(held))]
-            act = self.rim[i] & self.active[i]
+            act = self.active[i]  # only nodes under a curved part are ever active
             dofs.append(3 * nodes[act] + 2)
             vals.append(self._bound(i, lam)[act])
         d, v = np.concatenate(dofs), np.concatenate(vals)
