@@ -34,7 +34,6 @@ every load step and every phantom of a mesh: :class:`IndentationSolver` holds it
 from __future__ import annotations
 
 import copy
-import dataclasses
 import logging
 import time
 
@@ -46,7 +45,7 @@ from ..linalg import SymmetricSolver
 from ..mesh.tetmesh import TetMesh
 from ..touches import Touch, check_touches
 from .assembly import Evaluation, NeoHookeanOperator
-from .indenters import Constraints, conform_punch_edges
+from .indenters import Constraints, conform_punch_edges, flat_faces
 from .settings import Converged, IndentationResult, IndentSettings
 from .tangent import TangentSolves, _StepFailed
 
@@ -154,10 +153,8 @@ class IndentationSolver(TangentSolves):
         ref, self._op, ev = self.mesh.nodes_mm, self.op, self._ev0
         if s.indenter == "flat" and s.punch_edge == "conforming":
             # the rim a bonded punch holds is its flat face's: inside the rounding, if any
-            faces = tuple(dataclasses.replace(t, radius_mm=t.radius_mm - s.edge_radius_mm) for t in touches
-                          if t.radius_mm > s.edge_radius_mm)
             ref = conform_punch_edges(self.mesh.nodes_mm, self.mesh.tets, self.mesh.facets["top"], self._movable,
-                                      faces)
+                                      flat_faces(touches, s.indenter, s.edge_radius_mm))
         n_moved = int(np.count_nonzero(np.any(ref != self.mesh.nodes_mm, axis=1)))
         if n_moved:  # a new reference geometry: its own operator and undeformed tangent
             self._op = self.op.with_reference(ref)

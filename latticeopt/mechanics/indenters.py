@@ -29,6 +29,8 @@ once it would pull.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from .. import _validate as v
@@ -47,6 +49,21 @@ def check_edge_radius(edge_radius_mm, indenter: str, name: str = "edge_radius_mm
     if e and indenter != "flat":
         raise ParameterError(name, f"0 with indenter {indenter!r} (only the flat punch has an edge to round)", e)
     return e
+
+
+def curved_widths_mm(touches: tuple[Touch, ...], indenter: str, edge_radius_mm: float) -> np.ndarray:
+    """Radial width (mm) of each indenter's curved part: its edge radius, at most its radius (a touch narrower than
+    the edge radius is a hemispherical tip), and the whole radius for the sphere. The flat face is the disc of
+    radius ``r`` minus this."""
+    return np.array([t.radius_mm if indenter == "sphere" else min(edge_radius_mm, t.radius_mm) for t in touches])
+
+
+def flat_faces(touches: tuple[Touch, ...], indenter: str, edge_radius_mm: float) -> tuple[Touch, ...]:
+    """The flat faces of the indenters that have one, as touches of the face's radius (the rim a bonded punch
+    holds, which :func:`conform_punch_edges` resolves)."""
+    widths = curved_widths_mm(touches, indenter, edge_radius_mm)
+    return tuple(dataclasses.replace(t, radius_mm=t.radius_mm - w) for t, w in zip(touches, widths)
+                 if t.radius_mm > w)
 
 
 def conform_punch_edges(nodes_mm: np.ndarray, tets: np.ndarray, top_tris: np.ndarray, movable: np.ndarray,
@@ -159,8 +176,7 @@ class Constraints:
         self.bottom_dofs = (3 * bottom_nodes[:, None] + np.arange(3)).ravel()
         self.depth = np.array([t.depth_mm for t in touches])
         # the radius of each indenter's curved part: the sphere is a punch rounded all the way in
-        self.edge = np.array([t.radius_mm if indenter == "sphere" else min(edge_radius_mm, t.radius_mm)
-                              for t in touches])
+        self.edge = curved_widths_mm(touches, indenter, edge_radius_mm)
         # nodes under the curved part touch it (unilateral); the flat face's nodes are held (none for the sphere;
         # all for a sharp edge, including its nodes on the rim, at rho = r to round-off)
         self.rim = [((rho > t.radius_mm - e) & (e > 0)) | (e >= t.radius_mm)
