@@ -66,3 +66,15 @@ def test_edge_radius_is_checked():
         IndentSettings(edge_radius_mm=-1)
     with pytest.raises(ParameterError, match="only the flat punch"):
         IndentSettings(indenter="sphere", edge_radius_mm=1.0)
+
+
+def test_a_contact_set_that_never_settles_fails_the_step_with_a_named_reason(stack_mesh, monkeypatch):
+    # the primal-dual update reports a changed set at every converged iterate, up to the last one allowed: the
+    # step must fail (and the press give up) naming why, not fall out of the Newton loop
+    from latticeopt.errors import ConvergenceError
+    from latticeopt.mechanics import indenters
+
+    monkeypatch.setattr(indenters.Constraints, "update_active", lambda self, *args: True)
+    solver = IndentationSolver(stack_mesh, IndentSettings(indenter="sphere"))
+    with pytest.raises(ConvergenceError, match=r"no convergence in \d+ iterations \(the contact set still changing"):
+        solver.solve([(25, 25, 7.5, 1.0)])

@@ -336,7 +336,9 @@ class IndentationSolver(TangentSolves):
             else:
                 stalled = 0
             u, ev = u_new, ev_new
-        raise AssertionError("unreachable")  # pragma: no cover
+        # only a last iteration whose residual converged while the contact set changed again ends up here
+        raise _StepFailed(f"no convergence in {s.max_newton} iterations (the contact set still changing)", r_free,
+                          ev.min_J, tuple(norms))
 
     def _line_search(self, u: np.ndarray, du: np.ndarray, ev: Evaluation, has_jump: bool, isD: np.ndarray):
         """Backtrack until no tet inverts and (without a prescribed jump) energy or residual decreases."""
