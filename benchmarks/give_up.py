@@ -14,8 +14,9 @@ reaction forces at the step's start), the iterate's own reaction norm, the line 
 (the accepted fraction of the Newton increment), the energy change, the smallest det F of the accepted iterate
 (of the start, where the line search failed) and the factorization's diagonal shift; per attempt, how long
 its residual stalled: iterations without a new smallest residual, counted from its largest (past the rise while
-the increment is applied), at the attempt's end and longest. The summary gives the whole solve and the time
-and work from the end of the last accepted load step to the error.
+the increment is applied), at the attempt's end and longest. The summary gives the whole solve, the time
+and work from the end of the last accepted load step to the error, and the linear algebra's operation counts
+(factorizations, failed Cholesky tries of shifted tangents included; Krylov iterations; seconds factorizing).
 """
 
 from __future__ import annotations
@@ -124,6 +125,11 @@ def main(argv=None) -> None:
                     print(f"      it {k}: |R| {r:.3g} N ({r / reaction:.3g} x the step's start reaction), "
                           f"reaction {rD:.3g} N, alpha {a:.3g}, dE {dE:.3g} Nmm, min det F {J:.3g}, shift {sh:g}")
 
+    def counts() -> str:
+        return (f"{solver._n_factor} factorizations (failed Cholesky tries included; {solver._n_shifted} tangents "
+                f"shifted), "
+                f"{solver._n_krylov} Krylov iterations, {solver._clock['factorization']:.1f} s factorizing")
+
     solver._newton, solver._line_search = traced_newton, traced_line_search
     t_start = time.perf_counter()
     try:
@@ -136,10 +142,10 @@ def main(argv=None) -> None:
         print(f"GAVE UP after {total:.1f} s ({sum(a['newton'] for a in attempts)} Newton, "
               f"{sum(not a['ok'] for a in attempts)} failed attempts); from the last accepted step "
               f"({attempts[ok[-1]]['to_mm'] if ok else 0:.4f} mm) to the error: {total - t_last:.1f} s, "
-              f"{sum(a['newton'] for a in tail)} Newton, {len(tail)} failed attempts\n  {exc}")
+              f"{sum(a['newton'] for a in tail)} Newton, {len(tail)} failed attempts; {counts()}\n  {exc}")
     else:
         print(f"CONVERGED after {time.perf_counter() - t_start:.1f} s: {res.newton_steps} Newton, {res.load_steps} "
-              f"load steps, {res.step_halvings} halvings, forces {np.round(res.forces_N, 4).tolist()} N")
+              f"load steps, {res.step_halvings} halvings, forces {np.round(res.forces_N, 4).tolist()} N; {counts()}")
 
 
 if __name__ == "__main__":
