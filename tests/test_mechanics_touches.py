@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from latticeopt.mechanics import IndentationSolver, IndentSettings
+from latticeopt.errors import ConvergenceError
+from latticeopt.mechanics import IndentationSolver, IndentSettings, indenters
 
 
 def test_far_apart_touches_act_almost_independently(stack_solver):
@@ -71,9 +72,6 @@ def test_edge_radius_is_checked():
 def test_a_contact_set_that_never_settles_fails_the_step_with_a_named_reason(stack_mesh, monkeypatch):
     # the primal-dual update reports a changed set at every converged iterate, up to the last one allowed: the
     # step must fail (and the press give up) naming why, not fall out of the Newton loop
-    from latticeopt.errors import ConvergenceError
-    from latticeopt.mechanics import indenters
-
     monkeypatch.setattr(indenters.Constraints, "update_active", lambda self, *args: True)
     solver = IndentationSolver(stack_mesh, IndentSettings(indenter="sphere"))
     with pytest.raises(ConvergenceError, match=r"no convergence in \d+ iterations \(the contact set still changing"):
