@@ -76,3 +76,21 @@ def test_a_contact_set_that_never_settles_fails_the_step_with_a_named_reason(sta
     solver = IndentationSolver(stack_mesh, IndentSettings(indenter="sphere"))
     with pytest.raises(ConvergenceError, match=r"no convergence in \d+ iterations \(the contact set still changing"):
         solver.solve([(25, 25, 7.5, 1.0)])
+
+
+def test_a_rounding_no_node_lies_under_is_reported_once(stack_mesh, caplog):
+    # 2.5 mm top elements: a 0.25 mm rounding holds no node (the conforming map puts the flat face's rim nodes on
+    # r - e and keeps free nodes 0.3 elements away from it), a 3 mm one holds a ring of them
+    touch = (25, 25, 7.5, 1.0)
+    thin = IndentationSolver(stack_mesh, IndentSettings(edge_radius_mm=0.25))
+    with caplog.at_level("WARNING", logger="latticeopt.mechanics.indent"):
+        thin.solve([touch])
+        thin.solve([touch])
+    said = [r.getMessage() for r in caplog.records if "no top-surface node" in r.getMessage()]
+    assert len(said) == 1 and "touch #1" in said[0] and "sharp punch of radius 7.25 mm" in said[0], said
+    caplog.clear()
+    wide = IndentationSolver(stack_mesh, IndentSettings(edge_radius_mm=3.0))
+    with caplog.at_level("WARNING", logger="latticeopt.mechanics.indent"):
+        res = wide.solve([touch])
+    assert not [r for r in caplog.records if "no top-surface node" in r.getMessage()]
+    assert res.solver["contact_nodes"][0] > 0

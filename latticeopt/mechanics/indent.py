@@ -43,7 +43,7 @@ from ..design import REGION_IDS
 from ..errors import ConvergenceError
 from ..linalg import SymmetricSolver
 from ..mesh.tetmesh import TetMesh
-from ..touches import Touch, check_touches
+from ..touches import Touch, check_touches, touch_name
 from .assembly import Evaluation, NeoHookeanOperator
 from .indenters import Constraints, conform_punch_edges, flat_faces
 from .settings import Converged, IndentationResult, IndentSettings
@@ -124,6 +124,7 @@ class IndentationSolver(TangentSolves):
                                       precision=settings.factorization_precision)
         self._adjoint_factor = None  # the converged state whose own tangent ``linear`` holds (adjoint solves)
         self._shift = 0.0  # relative diagonal shift of the current factorization (0: the tangent itself)
+        self._warned_bare_rounding = False  # see solve
         self.setup_seconds = time.perf_counter() - t0
         log.info("indentation solver: %d dofs, %d nonzeros, %s, set up in %.2f s", n, self.op.nnz,
                  self.linear.backend, self.setup_seconds)
@@ -161,6 +162,16 @@ class IndentationSolver(TangentSolves):
             ev = self._evaluate(np.zeros_like(ref))
         cons = Constraints(ref, self.top_nodes, self.bottom_nodes, touches, s.indenter, s.in_plane,
                            s.edge_radius_mm)
+        bare = cons.bare_roundings()
+        if bare and not self._warned_bare_rounding:  # once per solver: a sweep presses one mesh many times
+            self._warned_bare_rounding = True
+            t = touches[bare[0]]
+            log.warning("edge_radius_mm = %g mm: no top-surface node lies under the rounded edge of %s (%g-%g mm from "
+                        "its centre), so it presses as a sharp punch of radius %g mm; top elements of about %g mm "
+                        "(mesh size_mm, --mesh-size) resolve the rounding (docs/verification.md, \"Rounded punch "
+                        "edge\")", s.edge_radius_mm,
+                        touch_name(bare[0]), t.radius_mm - s.edge_radius_mm, t.radius_mm,
+                        t.radius_mm - s.edge_radius_mm, s.edge_radius_mm)
         self._n_solves = self._n_factor = 0
         self._adjoint_factor = None
         self._factor_isD = None  # Dirichlet set of the current factorization (none yet for this phantom)

@@ -178,12 +178,19 @@ class Constraints:
         # the radius of each indenter's curved part: the sphere is a punch rounded all the way in
         self.edge = curved_widths_mm(touches, indenter, edge_radius_mm)
         # nodes under the curved part touch it (unilateral); the flat face's nodes are held (none for the sphere;
-        # all for a sharp edge, including its nodes on the rim, at rho = r to round-off)
-        self.rim = [((rho > t.radius_mm - e) & (e > 0)) | (e >= t.radius_mm)
+        # all for a sharp edge), including the nodes on its rim: the conforming map puts them at rho = r - e, which
+        # they exceed by round-off (the tolerance of the ownership test above)
+        self.rim = [((rho > t.radius_mm - e + 1e-9 * t.radius_mm) & (e > 0)) | (e >= t.radius_mm)
                     for rho, t, e in zip(self.rho, touches, self.edge)]
         # contact flags per touch node (start from the geometric overlap, refined by PDAS)
         self.active = [np.zeros(len(n), dtype=bool) for n in self.nodes]
         self.has_contact = any(r.any() for r in self.rim)
+
+    def bare_roundings(self) -> list[int]:
+        """Touches whose rounded edge holds no top node (beyond round-off): they act as sharp punches of radius
+        ``r - e``, the rounding narrower than the top surface's elements there."""
+        return [i for i, (rim, t, e) in enumerate(zip(self.rim, self.touches, self.edge))
+                if 0 < e < t.radius_mm and not rim.any()]
 
     # -- prescribed values ---------------------------------------------------------------------------
     def _bound(self, i: int, lam: float) -> np.ndarray:
