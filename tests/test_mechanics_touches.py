@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from latticeopt.errors import ConvergenceError
+from latticeopt.errors import ConvergenceError, ParameterError
 from latticeopt.mechanics import IndentationSolver, IndentSettings, indenters
 
 
@@ -61,8 +61,6 @@ def test_rounded_edge_contact_is_unilateral_and_softer_than_the_sharp_punch(stac
 
 
 def test_edge_radius_is_checked():
-    from latticeopt.errors import ParameterError
-
     with pytest.raises(ParameterError, match="edge_radius_mm.*-1"):
         IndentSettings(edge_radius_mm=-1)
     with pytest.raises(ParameterError, match="only the flat punch"):

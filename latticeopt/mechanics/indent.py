@@ -162,16 +162,15 @@ class IndentationSolver(TangentSolves):
             ev = self._evaluate(np.zeros_like(ref))
         cons = Constraints(ref, self.top_nodes, self.bottom_nodes, touches, s.indenter, s.in_plane,
                            s.edge_radius_mm)
-        bare = cons.bare_roundings()
-        if bare and not self._warned_bare_rounding:  # once per solver: a sweep presses one mesh many times
+        # once per solver: a sweep presses one mesh many times
+        bare = [] if self._warned_bare_rounding else cons.bare_roundings()
+        if bare:
             self._warned_bare_rounding = True
-            t = touches[bare[0]]
+            r, e = touches[bare[0]].radius_mm, s.edge_radius_mm
             log.warning("edge_radius_mm = %g mm: no top-surface node lies under the rounded edge of %s (%g-%g mm from "
                         "its centre), so it presses as a sharp punch of radius %g mm; top elements of about %g mm "
                         "(mesh size_mm, --mesh-size) resolve the rounding (docs/verification.md, \"Rounded punch "
-                        "edge\")", s.edge_radius_mm,
-                        touch_name(bare[0]), t.radius_mm - s.edge_radius_mm, t.radius_mm,
-                        t.radius_mm - s.edge_radius_mm, s.edge_radius_mm)
+                        "edge\")", e, touch_name(bare[0]), r - e, r, r - e, e)
         self._n_solves = self._n_factor = 0
         self._adjoint_factor = None
         self._factor_isD = None  # Dirichlet set of the current factorization (none yet for this phantom)
