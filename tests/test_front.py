@@ -195,3 +195,35 @@ def test_a_front_point_is_the_study_run_on_its_own(monkeypatch):
     floor, ident_floor = load("graded.min_uniformity=0.5")
     assert ident(points["free"]) == ident_free(free.config)
     assert ident(points["u0.500"]) == ident_floor(floor.config) != ident(points["u0.300"])
+
+
+def test_dominated_points_are_named_and_left_off_the_line():
+    """The model front of docs/results.md: the point with floor 0.30 came back to 0.342 after MMA overshot it, below
+    the points of floors 0.35 and 0.40, which meet its floor and respond more; the others dominate no one."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from latticeopt.optimize.front import dominated_by, draw_front
+
+    def row(label, v, u, met=True):
+        return {"label": label, "v_rel": v, "uniformity": u, "floor_met": met}
+
+    points = [row("free", 0.0829, 0.226, None), row("u0.250", 0.0807, 0.250), row("u0.300", 0.0735, 0.342),
+              row("u0.350", 0.0767, 0.350), row("u0.400", 0.0745, 0.400)]
+    refs = [row("square w8", 0.0734, 0.379, None), row("uniform", 0.0480, 0.47, None)]
+    better = dict(zip([r["label"] for r in points + refs], dominated_by(points + refs)))
+    assert better["u0.300"] == ["u0.350", "u0.400"]
+    assert better["square w8"] == ["u0.400"]  # 0.0745 at 0.400 against 0.0734 at 0.379
+    assert all(not better[k] for k in ("free", "u0.250", "u0.350", "u0.400", "uniform"))
+    assert dominated_by([row("a", 0.1, 0.3), row("b", 0.1, 0.3)]) == [[], []]  # a tie dominates neither
+    for r, b in zip(points, dominated_by(points + refs)):
+        r["dominated_by"] = "; ".join(b)
+    fig, ax = plt.subplots()
+    draw_front(ax, points, refs)
+    line = next(ln for ln in ax.lines if ln.get_label() == "optimized (epsilon-constraint)")
+    assert list(line.get_xdata()) == [0.226, 0.250, 0.350, 0.400]
+    hollow = next(ln for ln in ax.lines if ln.get_label() == "dominated by another optimized point")
+    assert list(hollow.get_xdata()) == [0.342]
+    plt.close(fig)

@@ -9,7 +9,8 @@ the uniform layer) are scored on the *same* density model, phantoms and probes, 
 (:func:`~latticeopt.density.field.density_of_design`), so every point of the plot comes from one model.
 
 Outputs: ``front.csv`` (a row per point: kind, label, mean V_rel, uniformity, worst-to-best ratio, gel fraction,
-the point's floor and whether its final layout meets it, folder), ``front.png`` (mean V_rel against uniformity),
+the point's floor and whether its final layout meets it, folder, and the rows that dominate it: at least its
+uniformity and more response, see :func:`dominated_by`), ``front.png`` (mean V_rel against uniformity),
 ``references.json`` (the lattices' results, kept between runs). A point whose ``final.json`` matches its settings
 is read, not run again; an interrupted point resumes from its ``state.json``.
 """
@@ -110,9 +111,30 @@ def run_front(study, out_dir, progress: Callable[[str], None] | None = print, jo
             progress(f"point {label}: done before, read from {folder / 'final.json'}")
         points.append(_row("optimized", label, final, folder))
     references = _references(study, out, progress, jobs)
+    rows = points + references
+    for row, better in zip(rows, dominated_by(rows)):
+        row["dominated_by"] = "; ".join(better)
+        if better and row["kind"] == "optimized" and progress:
+            progress(f"point {row['label']} is dominated by {', '.join(better)}: each has at least its uniformity "
+                     f"and responds more")
     files = {"table": str(_write_table(out / "front.csv", points + references)),
              "plot": str(plot_front(out / "front.png", points, references, _title(study)))}
     return {"points": points, "references": references, "files": files}
+
+
+def dominated_by(rows: list[dict]) -> list[list[str]]:
+    """For each row (``label``, ``uniformity``, ``v_rel``), the labels of the rows that dominate it: at least its
+    uniformity and at least its mean V_rel, one of them strictly more.
+
+    A point of the epsilon-constraint front dominated by another layout of the table is not on the front: that
+    layout meets the point's floor and responds more, so it answers the point's question better (MMA can overshoot
+    a floor and not come back within its iterations)."""
+    out = []
+    for p in rows:
+        out.append([q["label"] for q in rows
+                    if q["uniformity"] >= p["uniformity"] and q["v_rel"] >= p["v_rel"]
+                    and (q["uniformity"] > p["uniformity"] or q["v_rel"] > p["v_rel"])])
+    return out
 
 
 def _row(kind: str, label: str, final: dict, folder) -> dict:
@@ -180,16 +202,23 @@ def _write_table(path: Path, rows: list[dict]) -> Path:
 
 
 def draw_front(ax, points: list[dict], references: list[dict]) -> None:
-    """Draw the optimized points (``label``, ``uniformity``, ``v_rel``, ``floor_met``) joined in order of
-    uniformity, and the reference lattices (``label`` as "<family> w<width>") in a marker per family, on ``ax``."""
-    # a point that missed its floor is drawn hollow and left off the line: the optimizer stopped short of it
-    on = sorted((p for p in points if p["floor_met"] is not False), key=lambda p: p["uniformity"])
+    """Draw the optimized points (``label``, ``uniformity``, ``v_rel``, ``floor_met``, optionally ``dominated_by``)
+    joined in order of uniformity, and the reference lattices (``label`` as "<family> w<width>") in a marker per
+    family, on ``ax``."""
+    # a point that missed its floor, or that another optimized point dominates, is drawn hollow and left off the
+    # line: the optimizer stopped short of it
+    labels = {p["label"] for p in points}
+    beaten = [p for p in points if p["floor_met"] is not False and labels & set(_split(p.get("dominated_by", "")))]
     missed = [p for p in points if p["floor_met"] is False]
+    on = sorted((p for p in points if p not in missed and p not in beaten), key=lambda p: p["uniformity"])
     ax.plot([p["uniformity"] for p in on], [p["v_rel"] for p in on], "o-", color="k", ms=6,
             label="optimized (epsilon-constraint)", zorder=3)
     if missed:
         ax.plot([p["uniformity"] for p in missed], [p["v_rel"] for p in missed], "o", mfc="white", mec="k", ms=6,
                 zorder=4, label="floor not reached")
+    if beaten:
+        ax.plot([p["uniformity"] for p in beaten], [p["v_rel"] for p in beaten], "o", mfc="white", mec="0.5", ms=6,
+                zorder=4, label="dominated by another optimized point")
     # labels alternate above and below in order of uniformity: neighbouring points on the front do not overprint
     for i, p in enumerate(sorted(points, key=lambda p: p["uniformity"])):
         ax.annotate(p["label"], (p["uniformity"], p["v_rel"]), textcoords="offset points",
@@ -205,6 +234,10 @@ def draw_front(ax, points: list[dict], references: list[dict]) -> None:
             if " " in r["label"]:
                 ax.annotate(r["label"].split()[1], (r["uniformity"], r["v_rel"]), textcoords="offset points",
                             xytext=(4, -8), fontsize=6, color=line.get_color())
+
+
+def _split(text: str) -> list[str]:
+    return [t.strip() for t in text.split(";") if t.strip()]
 
 
 def plot_front(path: Path, points: list[dict], references: list[dict], title: str) -> Path:
