@@ -227,3 +227,44 @@ def test_dominated_points_are_named_and_left_off_the_line():
     hollow = next(ln for ln in ax.lines if ln.get_label() == "dominated by another optimized point")
     assert list(hollow.get_xdata()) == [0.342]
     plt.close(fig)
+
+
+def test_round_off_rows_are_reported_and_recomputed_for_old_runs(tmp_path, capsys, monkeypatch):
+    """The diagonal lattice at w = 2 hangs its corner electrodes on dead-end channels, so its untouched rows between
+    them are round-off in the density model too (4 mm cells); the square lattice's and the optimized layouts' are
+    not. The front names it in a warning, in front.csv and on the plot; a front run before final.json and
+    references.json kept the smallest row recomputes it (one electrics solve each) to the same value."""
+    monkeypatch.chdir(__import__("pathlib").Path(__file__).resolve().parents[1])
+    import csv
+
+    import latticeopt.optimize.front as front
+    from latticeopt.metric import ROUND_OFF_REL
+
+    monkeypatch.setattr(front, "REFERENCES", {"square": (4.0,), "diagonal": (2.0,)})
+    argv = ["optimize", "studies/optimize_graded.toml", "--out", str(tmp_path), "--set", "mesh.size_mm=4",
+            "--set", "graded.cells=25", "--set", "graded.iterations=1", "--set", "phantoms.counts={1=1}",
+            "--set", "graded.probe_grid=3", "--set", "graded.probe_radius_mm=12", "--set", "graded.probe_depth_mm=2.5",
+            "--set", "graded.front=[0.9]", "--quiet"]
+
+    def table():
+        with open(tmp_path / "front.csv") as fh:
+            return {r["label"]: r for r in csv.DictReader(fh)}
+
+    assert main(argv) == 0
+    out = capsys.readouterr().out
+    warning = [line for line in out.splitlines() if line.startswith("warning: reference rows")]
+    assert len(warning) == 1 and "(diagonal w2)" in warning[0]
+    rows = table()
+    assert {k for k, r in rows.items() if r["round_off"] == "True"} == {"diagonal w2"}
+    smallest = {k: float(r["min_reference_rel"]) for k, r in rows.items()}
+    assert smallest["diagonal w2"] < ROUND_OFF_REL < 1e-7 < min(v for k, v in smallest.items() if k != "diagonal w2")
+    for path in (tmp_path / "free" / "final.json", tmp_path / "references.json"):
+        stored = json.loads(path.read_text())
+        for entry in stored["points"].values() if "points" in stored else [stored]:
+            del entry["min_reference_rel"]
+        path.write_text(json.dumps(stored))
+    assert main(argv) == 0
+    assert "(diagonal w2)" in capsys.readouterr().out
+    again = {k: float(r["min_reference_rel"]) for k, r in table().items()}
+    assert again == pytest.approx(smallest, rel=1e-6)
+    assert "min_reference_rel" in json.loads((tmp_path / "references.json").read_text())["points"]["square w4"]

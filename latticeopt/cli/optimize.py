@@ -180,5 +180,7 @@ def _run_density_front(args: argparse.Namespace, study, out, jobs: int) -> int:
         print(f"{row['kind']:9s} {row['label']:16s} mean V_rel {row['v_rel']:.5f}  uniformity {row['uniformity']:.4f}"
               f"  worst/best {row['worst_to_best']:.3f}  gel {row['hydrogel_fraction']:.3f}"
               + (f"  dominated by {row['dominated_by']}" if row["dominated_by"] else ""))
+    for line in res["warnings"]:
+        print(line)
     print("wrote " + ", ".join(f"{k} {v}" for k, v in res["files"].items()))
     return 0

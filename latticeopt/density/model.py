@@ -239,6 +239,11 @@ class DensityModel:
             dforce_ddensity=mean("dforce"), dstretch_ddensity=mean("dstretch"), presses=tuple(presses),
             reference_voltages=v_ref)
 
+    def reference_voltages(self, density: np.ndarray) -> np.ndarray:
+        """The untouched layout's measurements (V), shape ``(n_rows,)``: the rows V_rel divides by. One electrics
+        solve, no press."""
+        return self._prepare(density).v_ref.copy()
+
     def _prepare(self, density: np.ndarray) -> _Reference:
         """The untouched layout of ``density`` (what :meth:`_press` needs), kept for the last density: the random
         phantoms and the probes of one iterate share it."""

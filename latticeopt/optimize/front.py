@@ -10,13 +10,15 @@ the uniform layer) are scored on the *same* density model, phantoms and probes, 
 
 Outputs: ``front.csv`` (a row per point: kind, label, mean V_rel, uniformity, worst-to-best ratio, gel fraction,
 the point's floor and whether its final layout meets it, folder, and the rows that dominate it: at least its
-uniformity and more response, see :func:`dominated_by`), ``front.png`` (mean V_rel against uniformity),
+uniformity and more response, see :func:`dominated_by`; the smallest reference row over the largest and whether
+V_rel divides by round-off), ``front.png`` (mean V_rel against uniformity),
 ``references.json`` (the lattices' results, kept between runs). A point whose ``final.json`` matches its settings
 is read, not run again; an interrupted point resumes from its ``state.json``.
 """
 
 from __future__ import annotations
 
+import functools
 import json
 import time
 from collections.abc import Callable
@@ -24,6 +26,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from ..errors import ParameterError
+from ..metric import ROUND_OFF_REL, smallest_reference_rel
 
 #: The parametric reference lattices: family -> channel widths (mm); width 0 is the uniform layer.
 REFERENCES = {"uniform": (0.0,), "square": (1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0),
@@ -85,8 +88,12 @@ def run_front(study, out_dir, progress: Callable[[str], None] | None = print, jo
     Returns
     -------
     dict
-        ``points`` and ``references`` (rows of ``front.csv``) and ``files``.
+        ``points`` and ``references`` (rows of ``front.csv``), ``files``, and ``warnings`` (lines naming the
+        layouts whose V_rel divides by reference rows at round-off, when no instrument floor lifts them).
     """
+    from ..density import DensityModel
+    from ..density.field import load_density
+    from ..study.report_lines import round_off_lines
     from .freeform import run_freeform
     from .graded import run_graded
 
@@ -94,6 +101,11 @@ def run_front(study, out_dir, progress: Callable[[str], None] | None = print, jo
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     run = run_freeform if study.kind == "freeform" else run_graded
+
+    @functools.cache
+    def model():  # built on first use: a front whose every point and lattice is stored needs none
+        return DensityModel(study.design, study.config.cells, study.mesh, study.physics)
+
     points = []
     for label, cfg in front_points(study.config):
         folder = out / label
@@ -109,9 +121,15 @@ def run_front(study, out_dir, progress: Callable[[str], None] | None = print, jo
                 progress(f"point {label}: {time.perf_counter() - t0:.0f} s")
         elif progress:
             progress(f"point {label}: done before, read from {folder / 'final.json'}")
+        if "min_reference_rel" not in final:  # a point run before final.json kept it: one electrics solve
+            rho = load_density(folder / "density.npz", str(folder / "density.npz"))
+            final = {**final, "min_reference_rel": smallest_reference_rel(model().reference_voltages(rho))}
         points.append(_row("optimized", label, final, folder))
-    references = _references(study, out, progress, jobs)
+    references = _references(study, out, progress, jobs, model)
     rows = points + references
+    floor_rel = study.physics.measurement_floor_rel
+    for row in rows:
+        row["round_off"] = row["min_reference_rel"] < ROUND_OFF_REL and floor_rel < ROUND_OFF_REL
     for row, better in zip(rows, dominated_by(rows)):
         row["dominated_by"] = "; ".join(better)
         if better and row["kind"] == "optimized" and progress:
@@ -119,7 +137,8 @@ def run_front(study, out_dir, progress: Callable[[str], None] | None = print, jo
                      f"and responds more")
     files = {"table": str(_write_table(out / "front.csv", points + references)),
              "plot": str(plot_front(out / "front.png", points, references, _title(study)))}
-    return {"points": points, "references": references, "files": files}
+    warnings = round_off_lines([(r["label"], r["min_reference_rel"]) for r in rows], floor_rel)
+    return {"points": points, "references": references, "files": files, "warnings": warnings}
 
 
 def dominated_by(rows: list[dict]) -> list[list[str]]:
@@ -144,12 +163,12 @@ def _row(kind: str, label: str, final: dict, folder) -> dict:
     return {"kind": kind, "label": label, "v_rel": final["v_rel"], "uniformity": final["uniformity"],
             "worst_to_best": final["probe_worst_to_best"], "hydrogel_fraction": final["hydrogel_fraction"],
             "min_uniformity": "" if floor is None else floor,
-            "floor_met": "" if floor is None else final["uniformity"] >= floor - FLOOR_TOL, "folder": str(folder)}
+            "floor_met": "" if floor is None else final["uniformity"] >= floor - FLOOR_TOL,
+            "min_reference_rel": final["min_reference_rel"], "folder": str(folder)}
 
 
-def _references(study, out: Path, progress, jobs: int = 1) -> list[dict]:
-    """Score :data:`REFERENCES` on the study's density model (resumable through ``references.json``)."""
-    from ..density import DensityModel
+def _references(study, out: Path, progress, jobs: int, model: Callable) -> list[dict]:
+    """Score :data:`REFERENCES` on the study's density model ``model()`` (resumable through ``references.json``)."""
     from ..density.field import density_of_design
     from .freeform import _write_json
     from .identity import run_identity, same_run
@@ -162,24 +181,28 @@ def _references(study, out: Path, progress, jobs: int = 1) -> list[dict]:
     if not same_run(stored.get("identity"), identity):
         raise ParameterError("out", "a front folder of this same study (references.json holds another study's "
                              "settings; choose another --out)", str(out))
-    model = probes = None
+    probes = None
     rows = []
     for label, design in reference_designs(study.design):
         if label not in stored["points"]:
-            if model is None:
-                model = DensityModel(study.design, cfg.cells, study.mesh, study.physics)
-                probes = ProbeGrid(study.design, cfg)
+            probes = probes or ProbeGrid(study.design, cfg)
             t0 = time.perf_counter()
             rho = density_of_design(design, cfg.cells)
-            ev = model.evaluate(rho, list(study.phantoms), gradient=False, jobs=jobs)
-            pe = probes.solve(model, rho, gradient=False, jobs=jobs)
+            ev = model().evaluate(rho, list(study.phantoms), gradient=False, jobs=jobs)
+            pe = probes.solve(model(), rho, gradient=False, jobs=jobs)
             stored["points"][label] = {"v_rel": ev.v_rel, "uniformity": pe.uniformity,
                                        "probe_worst_to_best": pe.worst_to_best,
-                                       "hydrogel_fraction": float(rho.mean()), "probes_solved": pe.solved}
+                                       "hydrogel_fraction": float(rho.mean()), "probes_solved": pe.solved,
+                                       "min_reference_rel": smallest_reference_rel(ev.reference_voltages)}
             _write_json(path, stored)
             if progress:
                 progress(f"reference {label}: mean V_rel {ev.v_rel:.5f}, uniformity {pe.uniformity:.4f} "
                          f"({pe.solved} probes solved, {time.perf_counter() - t0:.0f} s)")
+        elif "min_reference_rel" not in stored["points"][label]:  # scored before references.json kept it
+            rho = density_of_design(design, cfg.cells)
+            stored["points"][label]["min_reference_rel"] = smallest_reference_rel(
+                model().reference_voltages(rho))
+            _write_json(path, stored)
         rows.append(_row("reference", label, stored["points"][label], path))
     return rows
 
@@ -223,6 +246,10 @@ def draw_front(ax, points: list[dict], references: list[dict]) -> None:
     for i, p in enumerate(sorted(points, key=lambda p: p["uniformity"])):
         ax.annotate(p["label"], (p["uniformity"], p["v_rel"]), textcoords="offset points",
                     xytext=(5, 4 if i % 2 == 0 else -10), fontsize=7)
+    shaky = [r for r in points + references if r.get("round_off")]
+    if shaky:
+        ax.plot([r["uniformity"] for r in shaky], [r["v_rel"] for r in shaky], "x", color="red", ms=9, zorder=5,
+                label="V_rel divides by rows at round-off")
     markers = {"uniform": "*", "square": "s", "hexagonal": "h", "triangular": "^", "diagonal": "D"}
     for family, marker in markers.items():
         rows = [r for r in references if r["label"].split()[0] == family]

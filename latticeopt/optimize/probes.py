@@ -29,6 +29,7 @@ import numpy as np
 
 from .. import _validate as v
 from ..errors import ParameterError
+from ..metric import smallest_reference_rel
 from ..study.phantoms import worst_to_best
 from .objectives import TERMS, Objective
 
@@ -232,8 +233,10 @@ def uniformity_constraint(evaluate, param, beta: float, floor: float):
 
 
 def final_record(ev, density: np.ndarray, pe: ProbeEvaluation | None, identity: dict) -> dict:
-    """What ``final.json`` holds: the final layout's mean V_rel and gel fraction, and its probes when pressed."""
-    out = {"v_rel": ev.v_rel, "hydrogel_fraction": float(np.mean(density)), "identity": identity}
+    """What ``final.json`` holds: the final layout's mean V_rel, gel fraction and smallest reference row (over the
+    largest), and its probes when pressed."""
+    out = {"v_rel": ev.v_rel, "hydrogel_fraction": float(np.mean(density)), "identity": identity,
+           "min_reference_rel": smallest_reference_rel(ev.reference_voltages)}
     if pe is not None:
         out.update(uniformity=pe.uniformity, probe_worst_to_best=pe.worst_to_best, probe_v_rel=pe.v_rel.tolist())
     return out
