@@ -185,7 +185,8 @@ def _references(study, out: Path, progress, jobs: int, model: Callable) -> list[
     rows = []
     for label, design in reference_designs(study.design):
         if label not in stored["points"]:
-            probes = probes or ProbeGrid(study.design, cfg)
+            if probes is None:
+                probes = ProbeGrid(study.design, cfg)
             t0 = time.perf_counter()
             rho = density_of_design(design, cfg.cells)
             ev = model().evaluate(rho, list(study.phantoms), gradient=False, jobs=jobs)
