@@ -26,7 +26,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from ..errors import ParameterError
-from ..metric import ROUND_OFF_REL, smallest_reference_rel
+from ..metric import smallest_reference_rel
 
 #: The parametric reference lattices: family -> channel widths (mm); width 0 is the uniform layer.
 REFERENCES = {"uniform": (0.0,), "square": (1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0),
@@ -93,7 +93,7 @@ def run_front(study, out_dir, progress: Callable[[str], None] | None = print, jo
     """
     from ..density import DensityModel
     from ..density.field import load_density
-    from ..study.report_lines import round_off_lines
+    from ..study.report_lines import at_round_off, round_off_lines
     from .freeform import run_freeform
     from .graded import run_graded
 
@@ -129,13 +129,13 @@ def run_front(study, out_dir, progress: Callable[[str], None] | None = print, jo
     rows = points + references
     floor_rel = study.physics.measurement_floor_rel
     for row in rows:
-        row["round_off"] = row["min_reference_rel"] < ROUND_OFF_REL and floor_rel < ROUND_OFF_REL
+        row["round_off"] = at_round_off(row["min_reference_rel"], floor_rel)
     for row, better in zip(rows, dominated_by(rows)):
         row["dominated_by"] = "; ".join(better)
         if better and row["kind"] == "optimized" and progress:
             progress(f"point {row['label']} is dominated by {', '.join(better)}: each has at least its uniformity "
                      f"and responds more")
-    files = {"table": str(_write_table(out / "front.csv", points + references)),
+    files = {"table": str(_write_table(out / "front.csv", rows)),
              "plot": str(plot_front(out / "front.png", points, references, _title(study)))}
     warnings = round_off_lines([(r["label"], r["min_reference_rel"]) for r in rows], floor_rel)
     return {"points": points, "references": references, "files": files, "warnings": warnings}
@@ -225,14 +225,13 @@ def _write_table(path: Path, rows: list[dict]) -> Path:
     return path
 
 
-def draw_front(ax, points: list[dict], references: list[dict]) -> None:
-    """Draw the optimized points (``label``, ``uniformity``, ``v_rel``, ``floor_met``, optionally ``dominated_by``)
-    joined in order of uniformity, and the reference lattices (``label`` as "<family> w<width>") in a marker per
-    family, on ``ax``."""
+def draw_front(ax, points: list[dict], references: list[dict], mark_dominated: bool = False) -> None:
+    """Draw the optimized points (``label``, ``uniformity``, ``v_rel``, ``floor_met``) joined in order of
+    uniformity, and the reference lattices (``label`` as "<family> w<width>") in a marker per family, on ``ax``;
+    with ``mark_dominated``, an optimized point that another one dominates (:func:`dominated_by`) is drawn apart."""
     # a point that missed its floor, or that another optimized point dominates, is drawn hollow and left off the
     # line: the optimizer stopped short of it
-    labels = {p["label"] for p in points}
-    beaten = [p for p in points if p["floor_met"] is not False and labels & set(_split(p.get("dominated_by", "")))]
+    beaten = [p for p, b in zip(points, dominated_by(points)) if mark_dominated and b and p["floor_met"] is not False]
     missed = [p for p in points if p["floor_met"] is False]
     on = sorted((p for p in points if p not in missed and p not in beaten), key=lambda p: p["uniformity"])
     ax.plot([p["uniformity"] for p in on], [p["v_rel"] for p in on], "o-", color="k", ms=6,
@@ -264,10 +263,6 @@ def draw_front(ax, points: list[dict], references: list[dict]) -> None:
                             xytext=(4, -8), fontsize=6, color=line.get_color())
 
 
-def _split(text: str) -> list[str]:
-    return [t.strip() for t in text.split(";") if t.strip()]
-
-
 def plot_front(path: Path, points: list[dict], references: list[dict], title: str) -> Path:
     """Mean V_rel against uniformity: the optimized points joined in order of their floor, every reference
     family in its own marker with its widths written beside it."""
@@ -277,7 +272,7 @@ def plot_front(path: Path, points: list[dict], references: list[dict], title: st
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(7.0, 5.0), layout="constrained")
-    draw_front(ax, points, references)
+    draw_front(ax, points, references, mark_dominated=True)
     ax.set_xlabel("uniformity over the probe grid (1 - CV of V_rel)")
     ax.set_ylabel("mean V_rel over the study's phantoms")
     ax.set_title(title, fontsize=8, wrap=True)

@@ -15,11 +15,18 @@ from ._rows import _fmt
 from .config import Study
 from .store import Evaluation
 
-__all__ = ["failed_lines", "floor_text", "phantom_name", "rerun_lines", "round_off_lines", "smallest_reference"]
+__all__ = ["at_round_off", "failed_lines", "floor_text", "phantom_name", "rerun_lines", "round_off_lines",
+           "smallest_reference"]
 
 
 def _first_line(text: str | None) -> str:
     return (text or "").splitlines()[0] if text else ""
+
+
+def at_round_off(smallest: float | None, floor_rel: float) -> bool:
+    """Whether a ``V_rel`` divides by reference rows at round-off: its smallest row over its largest (``None``:
+    not reported) is below :data:`ROUND_OFF_REL` and no instrument floor ``floor_rel`` lifts such rows."""
+    return smallest is not None and smallest < ROUND_OFF_REL and floor_rel < ROUND_OFF_REL
 
 
 def round_off_lines(smallest: Sequence[tuple[str, float | None]], floor_rel: float) -> list[str]:
@@ -28,9 +35,7 @@ def round_off_lines(smallest: Sequence[tuple[str, float | None]], floor_rel: flo
     ``smallest`` holds ``(design label, min |V_ref| / max |V_ref|)`` pairs (``None`` where the model did not
     report it); nothing is said when ``floor_rel`` (``[physics] measurement_floor_rel``) already lifts such rows.
     """
-    if floor_rel >= ROUND_OFF_REL:
-        return []
-    bad = [(label, r) for label, r in smallest if r is not None and r < ROUND_OFF_REL]
+    bad = [(label, r) for label, r in smallest if at_round_off(r, floor_rel)]
     if not bad:
         return []
     worst = min(r for _, r in bad)
