@@ -327,10 +327,11 @@ class CoupledModel:
                                         warn=False)
         self.setup_seconds = time.perf_counter() - t0
 
-    def simulate(self, touches) -> SimulationResult:
-        """Indent with ``touches`` and measure (see the module docstring)."""
+    def simulate(self, touches, progress=None) -> SimulationResult:
+        """Indent with ``touches`` and measure (see the module docstring); ``progress``: as for
+        :meth:`~latticeopt.mechanics.IndentationSolver.solve`."""
         t0 = time.perf_counter()
-        ind = self.mechanics.solve(touches)
+        ind = self.mechanics.solve(touches, progress=progress)
         t1 = time.perf_counter()
         where, reference = "mesh", self.reference_voltages
         if self._transfer is None:

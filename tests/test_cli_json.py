@@ -81,3 +81,16 @@ def test_simulate_json_has_design_touches_and_mesh_settings(clean_cwd, capsys):
     assert out["mesh_settings"]["mesher"] == "grid" and out["mesh_settings"]["size_mm"] == 6.0
     assert out["v_rel"] > 0 and len(out["forces_N"]) == 2
     assert list(clean_cwd.iterdir()) == []
+
+
+@pytest.mark.parametrize("cmd", ["indent", "simulate"])
+def test_a_press_draws_its_progress_on_a_terminal_only(cmd, clean_cwd, capsys, monkeypatch):
+    """On a terminal the press's depth is drawn on stderr (a deep press takes minutes); piped, nothing is."""
+    args = [cmd, *COARSE, "--touch", "50,50,8.75,2", "--json"]
+    assert main(args) == 0
+    assert "pressing" not in capsys.readouterr().err
+    monkeypatch.setattr("sys.stderr.isatty", lambda: True, raising=False)
+    assert main(args) == 0
+    captured = capsys.readouterr()
+    assert "pressing: 2.000 of 2.000 mm" in captured.err
+    assert _strict(captured.out)["touches"][0]["depth_mm"] == 2.0

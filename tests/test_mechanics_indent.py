@@ -284,6 +284,18 @@ def test_load_steps_that_add_up_to_the_depth_end_on_it(stack_mesh):
     assert res.forces_N[0] == pytest.approx(one_step.forces_N[0], rel=1e-5)
 
 
+def test_progress_is_reported_after_every_accepted_load_step(stack_mesh):
+    """``progress`` sees each accepted step's depth once, rising, the last one the final depth; a failed step
+    (forced here by 4 Newton iterations per step, 2 mm at once) reports nothing."""
+    calls = []
+    s = IndentSettings(method="newton", max_newton=4, max_step_mm=2.0)
+    res = IndentationSolver(stack_mesh, s).solve([(25, 25, 7.5, 2.0)], progress=lambda d, f: calls.append((d, f)))
+    assert res.step_halvings > 0 and len(calls) == res.load_steps, (calls, res.step_halvings)
+    depths = [d for d, _ in calls]
+    assert all(b > a for a, b in zip(depths, depths[1:])) and depths[-1] == 2.0
+    assert {f for _, f in calls} == {2.0}
+
+
 def test_a_stalling_gmres_increment_is_replaced_by_a_fresh_factorization(stack_mesh, stack_solver):
     """GMRES increments that barely lower the residual (here cut to a twentieth, as the shifted system of an
     older factorization does on deep presses) are followed by an exact Newton step: the press converges to the

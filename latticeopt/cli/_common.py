@@ -111,6 +111,22 @@ def touches_named_by_flag():
         raise ParameterError(f"--{exc.name}", exc.expected, exc.got) from None
 
 
+@contextlib.contextmanager
+def press_progress(touches):
+    """A progress bar of one press on stderr, the deepest touch's depth reached against its final depth, drawn
+    only on a terminal (a deep press can take minutes); yields the ``progress`` callback of
+    :meth:`~latticeopt.mechanics.IndentationSolver.solve`."""
+    from tqdm import tqdm
+
+    with tqdm(total=max(t.depth_mm for t in touches), desc="pressing", unit="mm", disable=None, leave=False,
+              bar_format="{desc}: {n:.3f} of {total:.3f} mm |{bar}| {elapsed}") as bar:
+        def progress(depth_mm: float, final_mm: float) -> None:
+            bar.n = depth_mm
+            bar.refresh()
+
+        yield progress
+
+
 def sigma_help(default: float) -> str:
     """``--sigma`` of forward and simulate: their default and how export's differs (one text, two commands)."""
     from ..sensor_model import SIGMA0_S_PER_M

@@ -15,6 +15,7 @@ from ._common import (
     emit_json,
     mesh_from_args,
     mesh_settings_from_args,
+    press_progress,
     touches_from_args,
     touches_named_by_flag,
 )
@@ -59,8 +60,8 @@ def run_indent(args) -> int:
     t0 = time.perf_counter()
     mesh = mesh_from_args(args)
     t_mesh = time.perf_counter() - t0
-    with touches_named_by_flag():
-        res = indent(mesh, touches, settings)
+    with touches_named_by_flag(), press_progress(touches) as progress:
+        res = indent(mesh, touches, settings, progress=progress)
     summary = res.summary()
     summary.update({"design": design.as_dict(),
                     "mesh_settings": dataclasses.asdict(mesh_settings_from_args(args).resolved(design)),

@@ -15,6 +15,7 @@ from ._common import (
     design_from_args,
     emit_json,
     mesh_settings_from_args,
+    press_progress,
     sigma_help,
     touches_from_args,
     touches_named_by_flag,
@@ -79,8 +80,8 @@ def run_simulate(args) -> int:
     settings = mesh_settings_from_args(args)
     t0 = time.perf_counter()
     model = CoupledModel(design, settings, physics, cache_dir=False if args.no_cache else args.cache_dir)
-    with touches_named_by_flag():
-        res = model.simulate(touches)
+    with touches_named_by_flag(), press_progress(touches) as progress:
+        res = model.simulate(touches, progress=progress)
     out = res.summary()
     out.update({"design": design.as_dict(), "touches": [t.as_dict() for t in touches],
                 "mesh_settings": dataclasses.asdict(settings.resolved(design)), "physics": physics.as_dict(),

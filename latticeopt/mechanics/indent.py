@@ -139,12 +139,13 @@ class IndentationSolver(TangentSolves):
         other._adjoint_factor = None
         return other
 
-    def solve(self, touches, u0: np.ndarray | None = None) -> IndentationResult:
+    def solve(self, touches, u0: np.ndarray | None = None, progress=None) -> IndentationResult:
         """Indent with ``touches`` (Touch objects or ``(x, y, r, d)`` sequences, mm); see the module docstring.
 
         ``u0`` (shape ``(N, 3)``, mm): a displacement to start Newton from at full depth, the converged state
         of the same touches on a nearby design (an optimizer's previous iterate). The press is then solved in
         one load step when that converges, and by the usual load stepping from zero when it does not.
+        ``progress(depth_mm, final_depth_mm)``, if given, is called after every accepted load step (deepest touch).
         """
         t_start = time.perf_counter()
         s = self.settings
@@ -191,6 +192,8 @@ class IndentationSolver(TangentSolves):
                 u, ev, norms = self._newton(u0.copy(), ev0, cons, 1.0, final=True)
                 lam, warm_ok = 1.0, True
                 history.append(tuple(norms))
+                if progress is not None:
+                    progress(d_max, d_max)
             except _StepFailed as exc:
                 log.info("warm start failed (%s); load stepping from zero", exc.reason)
                 self._factor_isD = None
@@ -231,6 +234,8 @@ class IndentationSolver(TangentSolves):
             u, ev, lam = u_new, ev_new, lam_new
             stuck = 0
             history.append(tuple(norms))
+            if progress is not None:
+                progress(lam * d_max, d_max)
             if len(norms) <= 4:
                 dlam = min(dlam * 2.0, dlam_max)
         forces = cons.forces_N(ev.residual_N)
@@ -374,7 +379,7 @@ class IndentationSolver(TangentSolves):
                           r_old, min_J)
 
 
-def indent(mesh: TetMesh, touches, settings: IndentSettings | None = None) -> IndentationResult:
+def indent(mesh: TetMesh, touches, settings: IndentSettings | None = None, progress=None) -> IndentationResult:
     """Indent ``mesh`` with ``touches`` (see :class:`IndentationSolver`; builds one and solves once).
 
     Parameters
@@ -386,6 +391,8 @@ def indent(mesh: TetMesh, touches, settings: IndentSettings | None = None) -> In
         against the mesh's top surface and thickness before any solve.
     settings
         :class:`IndentSettings`; defaults to ``IndentSettings()``.
+    progress
+        Called as ``progress(depth_mm, final_depth_mm)`` after every accepted load step (optional).
 
     Returns
     -------
@@ -394,7 +401,7 @@ def indent(mesh: TetMesh, touches, settings: IndentSettings | None = None) -> In
     settings = settings or IndentSettings()
     lo, hi = mesh.nodes_mm.min(axis=0), mesh.nodes_mm.max(axis=0)
     check_touches(touches, (lo[0], hi[0]), (lo[1], hi[1]), float(hi[2] - lo[2]))  # fail before any setup
-    return IndentationSolver(mesh, settings).solve(touches)
+    return IndentationSolver(mesh, settings).solve(touches, progress=progress)
 
 
 __all__ = ["IndentSettings", "IndentationResult", "IndentationSolver", "indent", "Touch"]
