@@ -1,5 +1,6 @@
 """Indentation behaviour: convergence, monotonicity, symmetry, superposition, outputs and bad input."""
 
+import dataclasses
 import re
 
 import numpy as np
@@ -168,9 +169,15 @@ def test_indenter_smaller_than_the_mesh_is_a_parameter_error(stack_solver):
 
 
 def test_convergence_error_names_step_depth_and_residual(stack_mesh):
+    """The error names the step, the depths and the residual, and a sharp flat punch's names the rounded edge
+    that lets deep presses converge (not a rounded punch's)."""
     s = IndentSettings(method="newton", max_newton=1, max_step_mm=4.0, min_step_mm=2.0)
-    with pytest.raises(ConvergenceError, match=r"load step 1 from depth 0 mm towards .* residual"):
+    with pytest.raises(ConvergenceError, match=r"load step 1 from depth 0 mm towards .* residual .*edge_radius_mm"):
         IndentationSolver(stack_mesh, s).solve([(25, 25, 7.5, 4.0)])
+    rounded = dataclasses.replace(s, edge_radius_mm=2.5)
+    with pytest.raises(ConvergenceError, match=r"load step 1 from depth 0 mm towards .* residual") as exc:
+        IndentationSolver(stack_mesh, rounded).solve([(25, 25, 7.5, 4.0)])
+    assert "edge_radius_mm" not in str(exc.value)
 
 
 def _hopeless_press(mesh) -> tuple[str, dict]:

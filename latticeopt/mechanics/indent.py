@@ -226,10 +226,15 @@ class IndentationSolver(TangentSolves):
                     why = (f"; no progress: {stuck} failed steps in a row" if stuck >= STALL_HALVINGS else
                            f"; no progress: {at_target} failed attempts at this depth" if at_target >= TARGET_FAILURES
                            else "")
+                    # the sharp rim shears the material under it by the whole depth within one element
+                    hint = ("; the punch's edge is sharp: a rounded one (edge_radius_mm, --edge-radius) lets deep "
+                            "presses converge that a sharp one cannot (docs/verification.md, \"Rounded punch edge\")"
+                            if s.indenter == "flat" and s.edge_radius_mm == 0 else "")
                     raise ConvergenceError(
                         f"indentation did not converge: load step {len(history) + 1} from depth "
                         f"{lam * d_max:.4g} mm towards {lam_new * d_max:.4g} mm of {d_max:.4g} mm failed after "
-                        f"{halvings} step halvings ({exc.reason}; residual {exc.residual:.3g} N{inv}{why})") from None
+                        f"{halvings} step halvings ({exc.reason}; residual {exc.residual:.3g} N{inv}{why}){hint}"
+                    ) from None
                 continue
             u, ev, lam = u_new, ev_new, lam_new
             stuck = 0
