@@ -135,3 +135,28 @@ def test_element_kernel_equals_scikit_fem_forms(small_block):
     U = sp.csr_matrix((ev.data, op.indices, op.indptr), shape=(op.n_dofs,) * 2)
     assert np.abs(R - ev.residual_N).max() <= 1e-12 * np.abs(R).max()
     assert abs(K - (U + U.T - sp.diags(U.diagonal()))).max() <= 1e-12 * abs(K).max()
+
+
+def _full(op, data):
+    U = sp.csr_matrix((data, op.indices, op.indptr), shape=(op.n_dofs,) * 2)
+    return (U + U.T - sp.diags(U.diagonal())).toarray()
+
+
+def test_projected_tangent_is_the_tangent_without_its_negative_parts(small_block):
+    """A projected tangent (each patch block's negative eigenvalues set to 0) is positive semidefinite and differs
+    from the tangent by a positive semidefinite part, on a squashed state whose tangent is indefinite; where every
+    block is positive semidefinite (the undeformed stack) it is the tangent itself."""
+    op = NeoHookeanOperator(small_block, Materials(silicone=NeoHookean(23.0, 0.49), hydrogel=NeoHookean(5.0, 0.45)))
+    u0 = np.zeros((small_block.n_nodes, 3))
+    K0, P0 = (_full(op, op.evaluate(u0, project=p).data) for p in (False, True))
+    assert np.abs(P0 - K0).max() <= 1e-12 * np.abs(K0).max()
+    rng = np.random.default_rng(4)
+    u = 0.05 * rng.standard_normal(u0.shape)
+    u[:, 2] -= 0.6 * small_block.nodes_mm[:, 2]  # squashed to 40 % of its height: compressive pressure
+    ev = op.evaluate(u)
+    assert not ev.inverted
+    K, P = _full(op, ev.data), _full(op, op.evaluate(u, project=True).data)
+    scale = np.abs(K).max()
+    assert np.linalg.eigvalsh(K)[0] < -1e-6 * scale  # the case a projection is for
+    assert np.linalg.eigvalsh(P)[0] >= -1e-12 * scale
+    assert np.linalg.eigvalsh(P - K)[0] >= -1e-12 * scale

@@ -70,7 +70,7 @@ def tet_forces(grad, F, Finv_T, c, w, I1, tets, R):  # pragma: no cover - compil
 
 @njit(cache=True)
 def patch_tangents(grad, F, Finv_T, c, w, I1, v_e, starts, tet_slot, coef, qi, qj, pmap,
-                   data):  # pragma: no cover - compiled
+                   data, project=False):  # pragma: no cover - compiled
     """Add the tangent of every patch to ``data``: its tets' deviatoric and pressure terms plus the rank-one
     mean-dilatation block ``coef_h gbar gbar^T``, ``gbar = sum_{e in h} v_e h_e`` (the derivative of the patch
     volume), summed in a dense patch block first so that each CSR value is touched once per patch.
@@ -100,6 +100,9 @@ def patch_tangents(grad, F, Finv_T, c, w, I1, v_e, starts, tet_slot, coef, qi, q
         ``(P, len(qi))``.
     data : (nnz + 1,)
         CSR values, accumulated in place (the last entry absorbs padding).
+    project : bool
+        Add each patch block with its negative eigenvalues set to 0 (a positive semidefinite tangent: the
+        projected Newton of large-deformation elasticity, Teran et al. 2005).
     """
     nk = qj[-1] + 1  # the last upper pair is (nk - 1, nk - 1)
     B = np.zeros((nk, nk))
@@ -146,6 +149,17 @@ def patch_tangents(grad, F, Finv_T, c, w, I1, v_e, starts, tet_slot, coef, qi, q
                                 B[lb + k, la + i] += pai * h[b, k] + hai * r[b, k] + hbi * h[a, k]
                             B[lb + i, la + i] += G[a, b]
         cp = coef[p]
+        if project:
+            for x in range(nk):
+                for y in range(x, nk):
+                    B[x, y] += cp * gbar[x] * gbar[y]
+                    B[y, x] = B[x, y]
+            lam, V = np.linalg.eigh(B)
+            if lam[0] < 0.0:
+                B[:, :] = (V * np.maximum(lam, 0.0)) @ V.T
+            for n in range(qi.shape[0]):
+                data[pmap[p, n]] += B[qi[n], qj[n]]
+            continue
         for n in range(qi.shape[0]):
             x, y = qi[n], qj[n]
             data[pmap[p, n]] += B[x, y] + cp * gbar[x] * gbar[y]

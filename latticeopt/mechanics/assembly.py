@@ -241,8 +241,10 @@ class NeoHookeanOperator:
         return out, Jbar
 
     # -- energy, residual, tangent ------------------------------------------------------------------
-    def evaluate(self, u: np.ndarray, residual: bool = True, tangent: bool = True) -> Evaluation:
-        """Energy and, unless inverted, residual and tangent at displacement ``u`` (N, 3) in mm."""
+    def evaluate(self, u: np.ndarray, residual: bool = True, tangent: bool = True,
+                 project: bool = False) -> Evaluation:
+        """Energy and, unless inverted, residual and tangent at displacement ``u`` (N, 3) in mm; ``project``: the
+        tangent with every patch block's negative eigenvalues set to 0 (positive semidefinite)."""
         F, cof, J = self._kinematics(u)
         v_e = J * self.vol
         Jbar = np.bincount(self.patch, v_e, minlength=self.n_patches) / self.patch_vol
@@ -268,7 +270,7 @@ class NeoHookeanOperator:
         qi, qj = self._patch_pairs
         Upp = 0.5 * kap * (1.0 + 1.0 / Jbar ** 2)
         patch_tangents(self.grad, F, cof, c, w, I1, v_e, self._patch_starts, self._tet_slot, Upp / self.patch_vol,
-                       qi, qj, self._patch_map, data)
+                       qi, qj, self._patch_map, data, project)
         data = data[:-1]
         return Evaluation(energy, R, data, min_J, min_Jbar)
 
