@@ -127,7 +127,8 @@ def main(argv=None) -> None:
 
     def counts() -> str:
         return (f"{solver._n_factor} factorizations (failed Cholesky tries included; {solver._n_shifted} tangents "
-                f"shifted), {solver._n_krylov} Krylov iterations, {solver._clock['factorization']:.1f} s factorizing")
+                f"shifted, {solver._n_projected} projected), {solver._n_krylov} Krylov iterations, "
+                f"{solver._clock['factorization']:.1f} s factorizing")
 
     solver._newton, solver._line_search = traced_newton, traced_line_search
     t_start = time.perf_counter()

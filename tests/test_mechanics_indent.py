@@ -171,7 +171,7 @@ def test_indenter_smaller_than_the_mesh_is_a_parameter_error(stack_solver):
 def test_convergence_error_names_step_depth_and_residual(stack_mesh):
     """The error names the step, the depths and the residual, and a sharp flat punch's names the rounded edge
     that lets deep presses converge (not a rounded punch's)."""
-    s = IndentSettings(method="newton", max_newton=1, max_step_mm=4.0, min_step_mm=2.0)
+    s = IndentSettings(method="newton", max_newton=1, max_step_mm=4.0, min_step_mm=2.0, rescue_newton=0)
     with pytest.raises(ConvergenceError, match=r"load step 1 from depth 0 mm towards .* residual .*edge_radius_mm"):
         IndentationSolver(stack_mesh, s).solve([(25, 25, 7.5, 4.0)])
     rounded = dataclasses.replace(s, edge_radius_mm=2.5)
@@ -182,7 +182,7 @@ def test_convergence_error_names_step_depth_and_residual(stack_mesh):
 
 def _hopeless_press(mesh) -> tuple[str, dict]:
     """The 8.6 mm press of the test below; returns the error message and the failed-attempt counts."""
-    solver = IndentationSolver(mesh, IndentSettings(max_newton=12))
+    solver = IndentationSolver(mesh, IndentSettings(max_newton=12, rescue_newton=0))
     attempts = {"failed": 0, "since_accepted": 0}
     newton = solver._newton
 
@@ -224,7 +224,7 @@ def test_a_failed_step_is_never_retried_unchanged(stack_mesh):
     increment instead retried the same last step while that increment exceeded what was left."""
     from latticeopt.mechanics.tangent import _StepFailed
 
-    solver = IndentationSolver(stack_mesh, IndentSettings(max_step_mm=1.0))
+    solver = IndentationSolver(stack_mesh, IndentSettings(max_step_mm=1.0, rescue_newton=0))
     newton, events = solver._newton, []
 
     def failing_at_the_end(u, ev, cons, lam, final=True):
@@ -261,13 +261,42 @@ def _failing_at_the_end(solver, failures: int):
 def test_a_press_creeping_towards_its_depth_gives_up_at_the_third_failure_there(stack_mesh):
     """Every attempt at the final depth fails, the halves between them are accepted: the press gives up at the
     third failed attempt at that depth (halving on to min_step_mm took 6 attempts from 1 mm), naming the step,
-    the residual and the rule."""
-    solver = IndentationSolver(stack_mesh, IndentSettings(max_step_mm=1.0))
+    the residual and the rule; with a rescue (the default), after one more attempt at that step, on projected
+    tangents with the rescue's budget."""
+    solver = IndentationSolver(stack_mesh, IndentSettings(max_step_mm=1.0, rescue_newton=0))
     events = _failing_at_the_end(solver, failures=100)
     with pytest.raises(ConvergenceError, match=r"load step 4 from depth 1.375 mm towards 1.5 mm of 1.5 mm .* "
-                                               r"residual 1 N; no progress: 3 failed attempts at this depth"):
+                                               r"residual 1 N; no progress: 3 failed attempts at this depth\)"):
         solver.solve([(25, 25, 7.5, 1.5)])
     assert [e for e, _ in events] == ["ok", "failed", "ok", "failed", "ok", "failed"], events
+    solver = IndentationSolver(stack_mesh, IndentSettings(max_step_mm=1.0))
+    events = _failing_at_the_end(solver, failures=100)
+    budgets = []
+    newton = solver._newton
+
+    def recording(*args, **kwargs):
+        budgets.append((solver._project, solver._max_newton))
+        return newton(*args, **kwargs)
+
+    solver._newton = recording
+    with pytest.raises(ConvergenceError, match=r"from depth 1.375 mm towards 1.5 mm .* 4 failed attempts at this "
+                                               r"depth; rescued with projected tangents before"):
+        solver.solve([(25, 25, 7.5, 1.5)])
+    assert [e for e, _ in events] == ["ok", "failed", "ok", "failed", "ok", "failed", "failed"], events
+    assert budgets == [(False, 40)] * 6 + [(True, 160)], budgets
+
+
+def test_a_press_that_gives_up_on_shifted_tangents_is_rescued_on_projected_ones(stack_mesh):
+    """8 mm into the 9 mm stack with 8 Newton iterations per step gives up on shifted tangents (at 6.5 mm); the
+    rescue on projected tangents (32 iterations) reaches 8 mm. Checked from outside the solver: the operator at the
+    returned displacement is in equilibrium to rtol, no element inverted, and the punch pushes."""
+    res = IndentationSolver(stack_mesh, IndentSettings(max_newton=8, max_step_mm=2.0)).solve([(25, 25, 7.5, 8.0)])
+    assert res.solver["rescued"] and res.solver["projected_factorizations"] > 0, res.solver
+    R = res.state.op.evaluate(res.displacement_mm).residual_N
+    free = np.ones(R.size, dtype=bool)
+    free[res.state.dofs] = False
+    assert np.linalg.norm(R[free]) <= 1e-6 * np.linalg.norm(R[~free])
+    assert res.min_det_F > 0 and res.forces_N[0] > 0
 
 
 def test_a_press_that_fails_twice_at_its_depth_still_converges(stack_mesh, stack_solver):

@@ -23,8 +23,9 @@ converged when the residual on the free DOFs is below ``rtol`` times the reactio
 intermediate steps use the looser ``step_rtol`` (only the final state is reported). A failed step is
 halved (the increment that failed, so that near the final depth a retry is never the same step); below
 ``min_step_mm``, after 4 failed steps in a row, or after 3 failed attempts at one depth (a press creeping
-towards it by accepted halves), a :class:`ConvergenceError` names the step, the depth reached, the residual
-and whether elements inverted.
+towards it by accepted halves), the press is rescued once: the failed step again, on projected tangents
+(``rescue_newton``; :meth:`TangentSolves._factorize`); if that fails too, a :class:`ConvergenceError` names the
+step, the depth reached, the residual and whether elements inverted.
 
 Dirichlet DOFs are eliminated symmetrically inside a fixed sparsity pattern (their rows and columns zeroed,
 diagonal kept), so the pattern, and PARDISO's symbolic factorization, is the same for every Newton step,
@@ -124,6 +125,8 @@ class IndentationSolver(TangentSolves):
                                       precision=settings.factorization_precision)
         self._adjoint_factor = None  # the converged state whose own tangent ``linear`` holds (adjoint solves)
         self._shift = 0.0  # relative diagonal shift of the current factorization (0: the tangent itself)
+        self._project = self._projected = False  # see solve's rescue and TangentSolves._factorize
+        self._max_newton = settings.max_newton
         self._warned_bare_rounding = False  # see solve
         self.setup_seconds = time.perf_counter() - t0
         log.info("indentation solver: %d dofs, %d nonzeros, %s, set up in %.2f s", n, self.op.nnz,
@@ -151,7 +154,8 @@ class IndentationSolver(TangentSolves):
         s = self.settings
         touches = check_touches(touches, self.x_range, self.y_range, self.thickness_mm)
         self._clock = {"assembly": 0.0, "factorization": 0.0, "solve": 0.0, "krylov": 0.0}
-        self._n_krylov = self._n_shifted = 0
+        self._n_krylov = self._n_shifted = self._n_projected = 0
+        self._project, self._max_newton, rescued = False, s.max_newton, False
         ref, self._op, ev = self.mesh.nodes_mm, self.op, self._ev0
         if s.indenter == "flat" and s.punch_edge == "conforming":
             # the rim a bonded punch holds is its flat face's: inside the rounding, if any
@@ -222,10 +226,19 @@ class IndentationSolver(TangentSolves):
                 stuck += 1
                 failed_at[lam_new] = at_target = failed_at.get(lam_new, 0) + 1
                 if dlam * d_max < s.min_step_mm or stuck >= STALL_HALVINGS or at_target >= TARGET_FAILURES:
+                    if s.rescue_newton and not self._project:
+                        # rescue: the failed step once more, on projected tangents with a larger budget; its
+                        # failure (counted with the ones above) ends the press
+                        self._project, self._max_newton, rescued = True, s.rescue_newton, True
+                        dlam = lam_new - lam
+                        log.info("load step to %.4g mm: no progress; rescued with projected tangents (up to %d "
+                                 "iterations)", lam_new * d_max, s.rescue_newton)
+                        continue
                     inv = f"; an element inverted (min det F = {exc.min_J:.3g})" if exc.min_J <= 0 else ""
                     why = (f"; no progress: {stuck} failed steps in a row" if stuck >= STALL_HALVINGS else
                            f"; no progress: {at_target} failed attempts at this depth" if at_target >= TARGET_FAILURES
                            else "")
+                    rescue = "; rescued with projected tangents before" if rescued else ""
                     # the sharp rim shears the material under it by the whole depth within one element
                     hint = ("; the punch's edge is sharp: a rounded one (edge_radius_mm, --edge-radius) lets deep "
                             "presses converge that a sharp one cannot (docs/verification.md, \"Rounded punch edge\")"
@@ -233,7 +246,8 @@ class IndentationSolver(TangentSolves):
                     raise ConvergenceError(
                         f"indentation did not converge: load step {len(history) + 1} from depth "
                         f"{lam * d_max:.4g} mm towards {lam_new * d_max:.4g} mm of {d_max:.4g} mm failed after "
-                        f"{halvings} step halvings ({exc.reason}; residual {exc.residual:.3g} N{inv}{why}){hint}"
+                        f"{halvings} step halvings ({exc.reason}; residual {exc.residual:.3g} N{inv}{why}{rescue})"
+                        f"{hint}"
                     ) from None
                 continue
             u, ev, lam = u_new, ev_new, lam_new
@@ -257,7 +271,8 @@ class IndentationSolver(TangentSolves):
         clock["setup"] = self.setup_seconds
         stats = {"backend": self.linear.backend, "n_dofs": self.op.n_dofs, "nnz_upper": self.op.nnz,
                  "n_factorizations": self._n_factor, "shifted_factorizations": self._n_shifted,
-                 "krylov_iterations": self._n_krylov, "precision": self.linear.precision, "method": s.method,
+                 "krylov_iterations": self._n_krylov, "projected_factorizations": self._n_projected,
+                 "rescued": rescued, "precision": self.linear.precision, "method": s.method,
                  "volumetric": s.volumetric, "indenter": s.indenter, "in_plane": s.in_plane, "punch_edge": s.punch_edge,
                  "edge_radius_mm": s.edge_radius_mm,
                  "moved_reference_nodes": n_moved, "contact_nodes": [int(len(n)) for n in cons.contact_nodes()]}
@@ -291,7 +306,8 @@ class IndentationSolver(TangentSolves):
         refactor_next = False
         krylov = s.method == "newton-krylov"
         stalled = 0  # GMRES iterates in a row that did not lower the residual to _STALL_RATIO of the one before
-        for it in range(s.max_newton + 1):
+        max_newton = self._max_newton
+        for it in range(max_newton + 1):
             D, vals = cons.dirichlet(lam)
             isD = np.zeros(n, dtype=bool)
             isD[D] = True
@@ -311,9 +327,11 @@ class IndentationSolver(TangentSolves):
                     return u, ev, norms
                 first = len(norms)  # the contact set changed: solve again, judging divergence afresh
                 continue
-            if it == s.max_newton:
-                raise _StepFailed(f"no convergence in {s.max_newton} iterations", r_free, ev.min_J, tuple(norms))
-            if len(norms) > first + 3 and r_free > 1e3 * min(norms[first + 1:]):
+            if it == max_newton:
+                raise _StepFailed(f"no convergence in {max_newton} iterations", r_free, ev.min_J, tuple(norms))
+            # (not in a rescue: projected increments descend in energy, and a residual rising on the way is no sign
+            # of divergence there)
+            if not self._project and len(norms) > first + 3 and r_free > 1e3 * min(norms[first + 1:]):
                 raise _StepFailed("residual diverging", r_free, ev.min_J, tuple(norms))
             # Newton: the load increment of a new step goes through the factorization of the last iterate of
             # the previous step (its tangent differs from the converged one by O(residual)): one factorization
@@ -331,7 +349,7 @@ class IndentationSolver(TangentSolves):
             if exact:
                 if ev.data is None:
                     ev = self._evaluate(u, tangent=True)
-                du = self._linear_solve(ev, isD, D, jump, R)
+                du = self._linear_solve(ev, isD, D, jump, R, u=u)
                 self._factor_isD = isD
                 refactor_next = False
             elif not krylov:
@@ -357,7 +375,7 @@ class IndentationSolver(TangentSolves):
                 stalled = 0
             u, ev = u_new, ev_new
         # only a last iteration whose residual converged while the contact set changed again ends up here
-        raise _StepFailed(f"no convergence in {s.max_newton} iterations (the contact set still changing)", r_free,
+        raise _StepFailed(f"no convergence in {max_newton} iterations (the contact set still changing)", r_free,
                           ev.min_J, tuple(norms))
 
     def _line_search(self, u: np.ndarray, du: np.ndarray, ev: Evaluation, has_jump: bool, isD: np.ndarray):

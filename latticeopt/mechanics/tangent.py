@@ -4,10 +4,11 @@ when indefinite), and Newton increments by a direct solve or by GMRES through an
 :class:`TangentSolves` is a mixin of :class:`latticeopt.mechanics.indent.IndentationSolver`, which owns the state
 it works on: ``op`` (the operator and its fixed sparsity pattern), ``_op`` (the phantom's operator), ``linear``
 (the :class:`~latticeopt.linalg.SymmetricSolver` holding the symbolic and numeric factorization), ``settings``,
-the current diagonal shift ``_shift``, the cached constrained positions ``_zeroed`` / ``_zeroed_for`` and
-the counters ``_clock``, ``_n_factor``, ``_n_shifted``,
-``_n_krylov``, ``_n_solves``. Dirichlet DOFs are eliminated symmetrically inside the fixed pattern (rows and
-columns zeroed, diagonal kept), so every factorization reuses one symbolic analysis.
+the current diagonal shift ``_shift``, whether indefinite tangents are projected instead (``_project``, a
+press's rescue) and whether the current factorization is such a projection (``_projected``), the cached
+constrained positions ``_zeroed`` / ``_zeroed_for`` and the counters ``_clock``, ``_n_factor``, ``_n_shifted``,
+``_n_projected``, ``_n_krylov``, ``_n_solves``. Dirichlet DOFs are eliminated symmetrically inside the fixed
+pattern (rows and columns zeroed, diagonal kept), so every factorization reuses one symbolic analysis.
 """
 
 from __future__ import annotations
@@ -71,14 +72,15 @@ class TangentSolves:
         return lambda x: U @ x + U.T @ x - diag * x
 
     def _linear_solve(self, ev: Evaluation, isD: np.ndarray, D: np.ndarray, jump: np.ndarray,
-                      R: np.ndarray, refactor: bool = True) -> np.ndarray:
+                      R: np.ndarray, refactor: bool = True, u: np.ndarray | None = None) -> np.ndarray:
         """Newton increment: ``K du = -R`` on the free DOFs, ``du = jump`` on the constrained ones
-        (symmetric elimination; the factorization reuses the symbolic analysis)."""
+        (symmetric elimination; the factorization reuses the symbolic analysis). ``u``: the state of ``ev``,
+        which a projected tangent is assembled at (see :meth:`_factorize`)."""
         rhs = self._free_rhs(ev, D, jump, R)
         rhs[D] = ev.data[self.op.diag_pos[D]] * jump
         t = time.perf_counter()
         if refactor:
-            self._factorize(ev.data, isD)
+            self._factorize(ev.data, isD, u)
         t1 = time.perf_counter()
         du = self.linear.solve(rhs).ravel()
         self._clock["factorization"] += t1 - t
@@ -87,7 +89,7 @@ class TangentSolves:
         du[D] = jump  # exact, whatever the solver's rounding
         return du
 
-    def _factorize(self, data: np.ndarray, isD: np.ndarray) -> None:
+    def _factorize(self, data: np.ndarray, isD: np.ndarray, u: np.ndarray | None = None) -> None:
         """Cholesky of the constrained tangent; if it is indefinite, of the tangent with its free diagonal
         scaled by ``1 + sigma``, the smallest ``sigma`` of 1e-3, 1e-2, ... that is positive definite
         (Levenberg-Marquardt; Nocedal and Wright, Numerical Optimization, 2006, Alg. 3.3).
@@ -98,15 +100,35 @@ class TangentSolves:
         a load step, none at its converged states). The unshifted increment is then not a descent direction
         and the iterations wandered until the step was halved below ``min_step_mm``. The shifted increment
         is one, so the energy line search always makes progress; near the solution the tangent is positive
-        definite again and Newton's fast convergence returns (no shift)."""
+        definite again and Newton's fast convergence returns (no shift).
+
+        With ``_project`` set (a press's rescue, :class:`~latticeopt.mechanics.indent.IndentationSolver`) and the
+        state ``u`` given, an indefinite tangent is replaced by the projected one (each patch block's negative
+        eigenvalues set to 0), and only that is shifted if Cholesky still rejects it: on the deepest presses the
+        shifted increments diverge where the projected ones lower the energy at every iteration
+        (docs/performance.md, "Indefinite tangents")."""
         A = self._matrix(data, isD)
         self._n_factor += 1
+        self._projected = False
         if self.linear.backend != "pardiso":  # LU factorizes indefinite matrices; no inertia to test
             self.linear.refactor(A)
             self._shift = 0.0
             return
         from pypardiso.pardiso_wrapper import PyPardisoError
 
+        if self._project and u is not None:
+            try:
+                self.linear.refactor(A)
+                self._shift = 0.0
+                return
+            except PyPardisoError:
+                pass
+            t = time.perf_counter()
+            A = self._matrix(self._op.evaluate(u, project=True).data, isD)
+            self._clock["assembly"] += time.perf_counter() - t
+            self._n_factor += 1
+            self._n_projected += 1
+            self._projected = True
         diag = A.data[self.op.diag_pos].copy()
         free = ~isD
         for sigma in (0.0, 1e-3, 1e-2, 1e-1, 1.0, 10.0):
@@ -140,7 +162,11 @@ class TangentSolves:
         atol = max(rtol * float(np.linalg.norm(b)), atol)
         du, its, ok = gmres(self._symmetric_operator(data), b, precondition, atol, self.settings.max_krylov)
         self._n_krylov += its
-        if ok and self._shift and not np.any(jump) and float(R @ du) >= 0.0:
+        if ok and self._projected and not np.any(jump) and float(R @ du) >= 0.0:
+            # the same for a projected factorization: its own system, by one back-substitution
+            du = precondition(b)
+            du[D] = 0.0
+        elif ok and self._shift and not np.any(jump) and float(R @ du) >= 0.0:
             # the latest tangent was indefinite and this Newton increment does not lower the energy: solve the
             # shifted system the factorization belongs to instead (a descent direction)
             data[self.op.diag_pos[~isD]] *= 1.0 + self._shift
