@@ -16,9 +16,9 @@ the residual. By default inexact Newton (``method="newton-krylov"``): every iter
 tangent by GMRES preconditioned by the latest PARDISO factorization, to a relative residual ``krylov_rtol``,
 and refactorizes only when GMRES would need more than ``max_krylov`` back-substitutions -- about one
 factorization per load step instead of one per iteration. ``method="newton"`` factorizes every iteration
-(quadratic convergence, tested). Timings of both: ``benchmarks/bench_indent.py`` and ``docs/performance.md``.
-A backtracking line search never accepts
-``det F <= 0`` (nor a patch mean dilatation <= 0) and demands a decrease of energy or residual. A step has
+(quadratic convergence, tested). Timings of both: ``benchmarks/bench_indent.py`` and ``docs/performance.md``. A
+backtracking line search (:meth:`TangentSolves._line_search`) never accepts ``det F <= 0`` (nor a patch mean
+dilatation <= 0) and demands a decrease of energy or residual. A step has
 converged when the residual on the free DOFs is below ``rtol`` times the reaction norm (or ``atol_N``);
 intermediate steps use the looser ``step_rtol`` (only the final state is reported). A failed step is
 halved (the increment that failed, so that near the final depth a retry is never the same step); below
@@ -72,8 +72,7 @@ TARGET_FAILURES = 3
 # three attempts in a row, where exact Newton converged (docs/verification.md). So after this many GMRES
 # iterates in a row that did not lower the residual below ``_STALL_RATIO`` of the previous one, the next
 # iteration refactorizes. A press whose GMRES iterates keep converging follows exactly the path it did before.
-_STALL_ITERATES = 2
-_STALL_RATIO = 0.9
+_STALL_ITERATES, _STALL_RATIO = 2, 0.9
 # load factors this close to 1 are the final depth (a relative 1e-9 of it: far below any load step)
 _ROUND_OFF = 1e-9
 
@@ -285,12 +284,6 @@ class IndentationSolver(TangentSolves):
             max_hydrogel_stretch=smax, min_hydrogel_stretch=smin, min_det_F=float(J.min()),
             residual_norms=tuple(history), timings=clock, solver=stats)
 
-    def _evaluate(self, u: np.ndarray, tangent: bool = True) -> Evaluation:
-        t = time.perf_counter()
-        ev = self._op.evaluate(u, residual=True, tangent=tangent)
-        self._clock["assembly"] += time.perf_counter() - t
-        return ev
-
     def _newton(self, u: np.ndarray, ev: Evaluation, cons: Constraints, lam: float, final: bool = True):
         """Solve one load step from ``u`` (with its evaluation ``ev``) to load factor ``lam``.
 
@@ -377,29 +370,6 @@ class IndentationSolver(TangentSolves):
         # only a last iteration whose residual converged while the contact set changed again ends up here
         raise _StepFailed(f"no convergence in {max_newton} iterations (the contact set still changing)", r_free,
                           ev.min_J, tuple(norms))
-
-    def _line_search(self, u: np.ndarray, du: np.ndarray, ev: Evaluation, has_jump: bool, isD: np.ndarray):
-        """Backtrack until no tet inverts and (without a prescribed jump) energy or residual decreases."""
-        slope = float(ev.residual_N @ du)
-        r_old = float(np.linalg.norm(ev.residual_N[~isD]))
-        alpha, min_J = 1.0, np.inf
-        for k in range(12):
-            trial_u = u + alpha * du.reshape(u.shape)
-            trial = self._evaluate(trial_u, tangent=k == 0)
-            min_J = min(min_J, trial.min_J)
-            if not trial.inverted:
-                if has_jump:
-                    ok = True
-                else:
-                    armijo = trial.energy_Nmm <= ev.energy_Nmm + 1e-4 * alpha * min(slope, 0.0)
-                    ok = armijo or float(np.linalg.norm(trial.residual_N[~isD])) < r_old
-                if ok:
-                    if trial.data is None:
-                        trial = self._evaluate(trial_u, tangent=True)
-                    return trial, trial_u
-            alpha *= 0.5
-        raise _StepFailed("line search found no admissible step" + (" (elements invert)" if min_J <= 0 else ""),
-                          r_old, min_J)
 
 
 def indent(mesh: TetMesh, touches, settings: IndentSettings | None = None, progress=None) -> IndentationResult:

@@ -1,5 +1,6 @@
 """Linear algebra of the indentation's Newton iterations: the constrained tangent, its factorization (shifted
-when indefinite), and Newton increments by a direct solve or by GMRES through an older factorization.
+when indefinite, projected in a rescue), Newton increments by a direct solve or by GMRES through an older
+factorization, and the line search that accepts a fraction of an increment.
 
 :class:`TangentSolves` is a mixin of :class:`latticeopt.mechanics.indent.IndentationSolver`, which owns the state
 it works on: ``op`` (the operator and its fixed sparsity pattern), ``_op`` (the phantom's operator), ``linear``
@@ -178,6 +179,36 @@ class TangentSolves:
         self._n_solves += 1
         du[D] = jump
         return du
+
+    def _evaluate(self, u: np.ndarray, tangent: bool = True) -> Evaluation:
+        """The phantom's operator at displacement ``u`` (shape ``(N, 3)``, mm), timed as assembly."""
+        t = time.perf_counter()
+        ev = self._op.evaluate(u, residual=True, tangent=tangent)
+        self._clock["assembly"] += time.perf_counter() - t
+        return ev
+
+    def _line_search(self, u: np.ndarray, du: np.ndarray, ev: Evaluation, has_jump: bool, isD: np.ndarray):
+        """Backtrack until no tet inverts and (without a prescribed jump) energy or residual decreases."""
+        slope = float(ev.residual_N @ du)
+        r_old = float(np.linalg.norm(ev.residual_N[~isD]))
+        alpha, min_J = 1.0, np.inf
+        for k in range(12):
+            trial_u = u + alpha * du.reshape(u.shape)
+            trial = self._evaluate(trial_u, tangent=k == 0)
+            min_J = min(min_J, trial.min_J)
+            if not trial.inverted:
+                if has_jump:
+                    ok = True
+                else:
+                    armijo = trial.energy_Nmm <= ev.energy_Nmm + 1e-4 * alpha * min(slope, 0.0)
+                    ok = armijo or float(np.linalg.norm(trial.residual_N[~isD])) < r_old
+                if ok:
+                    if trial.data is None:
+                        trial = self._evaluate(trial_u, tangent=True)
+                    return trial, trial_u
+            alpha *= 0.5
+        raise _StepFailed("line search found no admissible step" + (" (elements invert)" if min_J <= 0 else ""),
+                          r_old, min_J)
 
     @property
     def linear_counts(self) -> dict:
