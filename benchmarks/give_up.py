@@ -17,11 +17,22 @@ its residual stalled: iterations without a new smallest residual, counted from i
 the increment is applied), at the attempt's end and longest. The summary gives the whole solve, the time
 and work from the end of the last accepted load step to the error, and the linear algebra's operation counts
 (factorizations, failed Cholesky tries of shifted tangents included; Krylov iterations; seconds factorizing).
+
+Per attempt of more than a ``--window`` (10 s), once its increment is applied, three measures of progress that
+a "no progress within 10 s" rule could use: the smallest relative energy decrease over any window of that length,
+the longest time without a residual 10 % below the lowest so far, and the longest run of iterations whose energy
+change equals the increment's first-order prediction ``R . du`` to 2 % (the energy flat to second order along it).
+``--mesh coarse --size-mm 50 --design 4:3`` is the unit tests' stack (50 mm, 2.5 mm grid), where a 1,000-iteration
+rescue takes minutes (``--rescue-newton``; docs/verification.md, "A press that cannot finish still makes
+progress"):
+
+    python benchmarks/give_up.py --mesh coarse --size-mm 50 --design 4:3 --touch 25,25,7.5,8.999 --rescue-newton 1000
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import logging
 import os
 import sys
@@ -34,12 +45,12 @@ import numpy as np  # noqa: E402
 
 from latticeopt import LatticeDesign, MeshSettings  # noqa: E402
 from latticeopt.cli._physics import add_physics_arg, physics_settings  # noqa: E402
-from latticeopt.errors import ConvergenceError  # noqa: E402
+from latticeopt.errors import ConvergenceError, ParameterError  # noqa: E402
 from latticeopt.mechanics import IndentationSolver  # noqa: E402
 from latticeopt.mesh import mesh_design  # noqa: E402
 
 MESHES = {"paper": MeshSettings(size_mm=2.0, channel_cells=2, layer_cells=2, electrode_edges=False),
-          "default": MeshSettings()}
+          "default": MeshSettings(), "coarse": MeshSettings(size_mm=2.5)}
 
 
 def stall(norms) -> tuple[int, int]:
@@ -53,6 +64,26 @@ def stall(norms) -> tuple[int, int]:
     return run, longest
 
 
+def progress(rows, window_s: float) -> str:
+    """The progress measures of the module docstring for one attempt's iterations ``(seconds, |R| (N), energy of
+    the accepted iterate (N mm), its change dE, R . du)`` after its increment is applied; empty when they span less
+    than ``window_s``."""
+    if len(rows) < 2 or rows[-1][0] - rows[0][0] < window_s:
+        return ""
+    t, r, E, dE, slope = (np.array(c) for c in zip(*rows))
+    j = np.searchsorted(t, t + window_s)
+    drops = [(E[i] - E[k]) / abs(E[i]) for i, k in enumerate(j) if k < len(t)]
+    best, since, no_min, flat, run = np.inf, t[0], 0.0, 0, 0
+    for ti, ri, d, s in zip(t, r, dE, slope):
+        if ri < 0.9 * best:
+            best, since = ri, ti
+        no_min = max(no_min, ti - since)
+        run = run + 1 if s < 0 and abs(d / s - 1.0) <= 0.02 else 0
+        flat = max(flat, run)
+    return (f"; progress over {window_s:g} s: energy down by at least {min(drops):.2g} of itself in every window, "
+            f"{no_min:.1f} s at most without a 10 % lower residual, {flat} iterations in a row at dE = R.du")
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--design", default="2:1", help="W:T (mm)")
@@ -61,6 +92,11 @@ def main(argv=None) -> None:
     ap.add_argument("--touch", action="append", default=[], metavar="X,Y,R,D", help="a touch (mm); repeatable")
     ap.add_argument("--phantom", help="a paper phantom K:I (benchmarks/deep_presses.py) instead of --touch")
     ap.add_argument("--iterations", action="store_true", help="print every Newton iteration")
+    ap.add_argument("--size-mm", type=float, default=100.0, help="the sensor's side (mm; default 100)")
+    ap.add_argument("--rescue-newton", type=int, default=None, metavar="N",
+                    help="IndentSettings.rescue_newton (default: the setting's, 4 x max_newton)")
+    ap.add_argument("--window", type=float, default=10.0, metavar="SECONDS",
+                    help="the window of the progress measures (s; default 10)")
     add_physics_arg(ap)
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(message)s")
@@ -73,14 +109,23 @@ def main(argv=None) -> None:
         touches = [tuple(float(x) for x in t.split(",")) for t in args.touch]
     if not touches:
         ap.error("--touch or --phantom: expected a touch, got none")
+    if not args.window > 0:
+        ap.error(f"--window: expected seconds > 0, got {args.window:g}")
     physics = physics_settings(args)
+    settings = physics.indent_settings()
+    if args.rescue_newton is not None:
+        try:
+            settings = dataclasses.replace(settings, rescue_newton=args.rescue_newton)
+        except ParameterError as exc:
+            ap.error(f"--rescue-newton: {exc}")
     w, t = (float(x) for x in args.design.split(":"))
     t0 = time.perf_counter()
-    design = LatticeDesign(width_mm=w, thickness_mm=t, pitch_mm=12.5, pattern=args.pattern)
+    design = LatticeDesign(width_mm=w, thickness_mm=t, pitch_mm=12.5, pattern=args.pattern, size_mm=args.size_mm)
     mesh = mesh_design(design, MESHES[args.mesh])
-    solver = IndentationSolver(mesh, physics.indent_settings())
+    solver = IndentationSolver(mesh, settings)
     print(f"design {args.design}, {args.mesh} mesh: {mesh.n_nodes} nodes, {solver.op.n_dofs} dofs; mesh and set-up "
-          f"{time.perf_counter() - t0:.1f} s; max_newton {solver.settings.max_newton}; touches {touches}", flush=True)
+          f"{time.perf_counter() - t0:.1f} s; max_newton {solver.settings.max_newton}, rescue_newton "
+          f"{solver.settings.rescue_newton}; touches {touches}", flush=True)
     attempts, iters = [], []
     newton, line_search = solver._newton, solver._line_search
     d_max = max(float(x[3]) if not hasattr(x, "depth_mm") else x.depth_mm for x in touches)
@@ -91,11 +136,13 @@ def main(argv=None) -> None:
             ev_new, u_new = line_search(u, du, ev, has_jump, isD)
         except Exception:
             iters.append((float(np.linalg.norm(ev.residual_N[~isD])), 0.0, np.nan, solver._shift,
-                          float(np.linalg.norm(ev.residual_N[isD])), ev.min_J))
+                          float(np.linalg.norm(ev.residual_N[isD])), ev.min_J, time.perf_counter(), has_jump, np.nan,
+                          ev.energy_Nmm))
             raise
         step = float(np.linalg.norm(u_new.ravel() - u.ravel())) / max(float(np.linalg.norm(du)), 1e-300)
         iters.append((float(np.linalg.norm(ev.residual_N[~isD])), step, ev_new.energy_Nmm - ev.energy_Nmm,
-                      solver._shift, float(np.linalg.norm(ev.residual_N[isD])), ev_new.min_J))
+                      solver._shift, float(np.linalg.norm(ev.residual_N[isD])), ev_new.min_J, time.perf_counter(),
+                      bool(has_jump), float(ev.residual_N @ du), ev_new.energy_Nmm))
         return ev_new, u_new
 
     def traced_newton(u, ev, cons, lam, final=True):
@@ -118,10 +165,12 @@ def main(argv=None) -> None:
             end, longest = stall([it[0] for it in row["iters"]])
             print(f"  {'ok    ' if row['ok'] else 'FAILED'} {row['from_mm']:.4f} -> {row['to_mm']:.4f} mm: "
                   f"{row['newton']} Newton, {row['seconds']:.1f} s, residual {row['residual']:.3g} N "
-                  f"{row['why'] + '; ' if row['why'] else ''}stalled {end} at the end (longest {longest})", flush=True)
+                  f"{row['why'] + '; ' if row['why'] else ''}stalled {end} at the end (longest {longest})"
+                  f"{progress([(it[6], it[0], it[9], it[2], it[8]) for it in row['iters'] if not it[7]], args.window)}",
+                  flush=True)
             if args.iterations:
                 reaction = max(row["iters"][0][4], 1e-300) if row["iters"] else np.nan
-                for k, (r, a, dE, sh, rD, J) in enumerate(row["iters"]):
+                for k, (r, a, dE, sh, rD, J, *_) in enumerate(row["iters"]):
                     print(f"      it {k}: |R| {r:.3g} N ({r / reaction:.3g} x the step's start reaction), "
                           f"reaction {rD:.3g} N, alpha {a:.3g}, dE {dE:.3g} Nmm, min det F {J:.3g}, shift {sh:g}")
 
