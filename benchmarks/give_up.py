@@ -37,6 +37,7 @@ import logging
 import os
 import sys
 import time
+from typing import NamedTuple
 
 for _var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
@@ -53,6 +54,21 @@ MESHES = {"paper": MeshSettings(size_mm=2.0, channel_cells=2, layer_cells=2, ele
           "default": MeshSettings(), "coarse": MeshSettings(size_mm=2.5)}
 
 
+class Iterate(NamedTuple):
+    """One Newton iteration's line search, as traced."""
+
+    residual_N: float  # free residual at the iteration's start
+    alpha: float  # accepted fraction of the increment (0: the line search failed)
+    dE_Nmm: float  # energy change of the accepted iterate (nan: failed)
+    shift: float  # the factorization's relative diagonal shift
+    reaction_N: float  # norm of the constrained residual at the start
+    min_J: float  # smallest det F of the accepted iterate (of the start, where the line search failed)
+    seconds: float  # perf_counter when the line search ended
+    jump: bool  # part of the step's prescribed increment still being applied
+    slope_Nmm: float  # R . du (nan: failed)
+    energy_Nmm: float  # energy of the accepted iterate (of the start, where the line search failed)
+
+
 def stall(norms) -> tuple[int, int]:
     """Iterations without a new smallest residual in ``norms`` after its largest: (at the end, longest run)."""
     if not norms:
@@ -64,13 +80,14 @@ def stall(norms) -> tuple[int, int]:
     return run, longest
 
 
-def progress(rows, window_s: float) -> str:
-    """The progress measures of the module docstring for one attempt's iterations ``(seconds, |R| (N), energy of
-    the accepted iterate (N mm), its change dE, R . du)`` after its increment is applied; empty when they span less
-    than ``window_s``."""
-    if len(rows) < 2 or rows[-1][0] - rows[0][0] < window_s:
+def progress(iterates: list[Iterate], window_s: float) -> str:
+    """The progress measures of the module docstring for one attempt's iterations once its increment is applied;
+    empty when they span less than ``window_s``."""
+    rows = [it for it in iterates if not it.jump]
+    if len(rows) < 2 or rows[-1].seconds - rows[0].seconds < window_s:
         return ""
-    t, r, E, dE, slope = (np.array(c) for c in zip(*rows))
+    t, r, E, dE, slope = (np.array([getattr(it, f) for it in rows])
+                          for f in ("seconds", "residual_N", "energy_Nmm", "dE_Nmm", "slope_Nmm"))
     j = np.searchsorted(t, t + window_s)
     drops = [(E[i] - E[k]) / abs(E[i]) for i, k in enumerate(j) if k < len(t)]
     best, since, no_min, flat, run = np.inf, t[0], 0.0, 0, 0
@@ -119,8 +136,11 @@ def main(argv=None) -> None:
         except ParameterError as exc:
             ap.error(f"--rescue-newton: {exc}")
     w, t = (float(x) for x in args.design.split(":"))
+    try:
+        design = LatticeDesign(width_mm=w, thickness_mm=t, pitch_mm=12.5, pattern=args.pattern, size_mm=args.size_mm)
+    except ParameterError as exc:
+        ap.error(f"--design, --pattern or --size-mm: {exc}")
     t0 = time.perf_counter()
-    design = LatticeDesign(width_mm=w, thickness_mm=t, pitch_mm=12.5, pattern=args.pattern, size_mm=args.size_mm)
     mesh = mesh_design(design, MESHES[args.mesh])
     solver = IndentationSolver(mesh, settings)
     print(f"design {args.design}, {args.mesh} mesh: {mesh.n_nodes} nodes, {solver.op.n_dofs} dofs; mesh and set-up "
@@ -135,14 +155,14 @@ def main(argv=None) -> None:
         try:
             ev_new, u_new = line_search(u, du, ev, has_jump, isD)
         except Exception:
-            iters.append((float(np.linalg.norm(ev.residual_N[~isD])), 0.0, np.nan, solver._shift,
-                          float(np.linalg.norm(ev.residual_N[isD])), ev.min_J, time.perf_counter(), has_jump, np.nan,
-                          ev.energy_Nmm))
+            iters.append(Iterate(float(np.linalg.norm(ev.residual_N[~isD])), 0.0, np.nan, solver._shift,
+                                 float(np.linalg.norm(ev.residual_N[isD])), ev.min_J, time.perf_counter(),
+                                 bool(has_jump), np.nan, ev.energy_Nmm))
             raise
         step = float(np.linalg.norm(u_new.ravel() - u.ravel())) / max(float(np.linalg.norm(du)), 1e-300)
-        iters.append((float(np.linalg.norm(ev.residual_N[~isD])), step, ev_new.energy_Nmm - ev.energy_Nmm,
-                      solver._shift, float(np.linalg.norm(ev.residual_N[isD])), ev_new.min_J, time.perf_counter(),
-                      bool(has_jump), float(ev.residual_N @ du), ev_new.energy_Nmm))
+        iters.append(Iterate(float(np.linalg.norm(ev.residual_N[~isD])), step, ev_new.energy_Nmm - ev.energy_Nmm,
+                             solver._shift, float(np.linalg.norm(ev.residual_N[isD])), ev_new.min_J,
+                             time.perf_counter(), bool(has_jump), float(ev.residual_N @ du), ev_new.energy_Nmm))
         return ev_new, u_new
 
     def traced_newton(u, ev, cons, lam, final=True):
@@ -162,17 +182,17 @@ def main(argv=None) -> None:
         finally:
             row.update(seconds=time.perf_counter() - t, newton=solver._n_solves - n0, iters=list(iters))
             attempts.append(row)
-            end, longest = stall([it[0] for it in row["iters"]])
+            end, longest = stall([it.residual_N for it in row["iters"]])
             print(f"  {'ok    ' if row['ok'] else 'FAILED'} {row['from_mm']:.4f} -> {row['to_mm']:.4f} mm: "
                   f"{row['newton']} Newton, {row['seconds']:.1f} s, residual {row['residual']:.3g} N "
                   f"{row['why'] + '; ' if row['why'] else ''}stalled {end} at the end (longest {longest})"
-                  f"{progress([(it[6], it[0], it[9], it[2], it[8]) for it in row['iters'] if not it[7]], args.window)}",
-                  flush=True)
+                  f"{progress(row['iters'], args.window)}", flush=True)
             if args.iterations:
-                reaction = max(row["iters"][0][4], 1e-300) if row["iters"] else np.nan
-                for k, (r, a, dE, sh, rD, J, *_) in enumerate(row["iters"]):
-                    print(f"      it {k}: |R| {r:.3g} N ({r / reaction:.3g} x the step's start reaction), "
-                          f"reaction {rD:.3g} N, alpha {a:.3g}, dE {dE:.3g} Nmm, min det F {J:.3g}, shift {sh:g}")
+                reaction = max(row["iters"][0].reaction_N, 1e-300) if row["iters"] else np.nan
+                for k, it in enumerate(row["iters"]):
+                    print(f"      it {k}: |R| {it.residual_N:.3g} N ({it.residual_N / reaction:.3g} x the step's start "
+                          f"reaction), reaction {it.reaction_N:.3g} N, alpha {it.alpha:.3g}, dE {it.dE_Nmm:.3g} Nmm, "
+                          f"min det F {it.min_J:.3g}, shift {it.shift:g}")
 
     def counts() -> str:
         return (f"{solver._n_factor} factorizations (failed Cholesky tries included; {solver._n_shifted} tangents "
