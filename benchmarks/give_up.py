@@ -23,16 +23,16 @@ a "no progress within 10 s" rule could use: the smallest relative energy decreas
 the longest time without a residual 10 % below the lowest so far, and the longest run of iterations whose energy
 change equals the increment's first-order prediction ``R . du`` to 2 % (the energy flat to second order along it).
 ``--mesh coarse --size-mm 50 --design 4:3`` is the unit tests' stack (50 mm, 2.5 mm grid), where a 1,000-iteration
-rescue takes minutes (``--rescue-newton``; docs/verification.md, "A press that cannot finish still makes
-progress"):
+rescue takes minutes (the ``[physics]`` key ``mechanics_rescue_newton``; docs/verification.md, "A press that
+cannot finish still makes progress"):
 
-    python benchmarks/give_up.py --mesh coarse --size-mm 50 --design 4:3 --touch 25,25,7.5,8.999 --rescue-newton 1000
+    python benchmarks/give_up.py --mesh coarse --size-mm 50 --design 4:3 --touch 25,25,7.5,8.999 \
+        --physics mechanics_rescue_newton=1000
 """
 
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import logging
 import os
 import sys
@@ -110,8 +110,6 @@ def main(argv=None) -> None:
     ap.add_argument("--phantom", help="a paper phantom K:I (benchmarks/deep_presses.py) instead of --touch")
     ap.add_argument("--iterations", action="store_true", help="print every Newton iteration")
     ap.add_argument("--size-mm", type=float, default=100.0, help="the sensor's side (mm; default 100)")
-    ap.add_argument("--rescue-newton", type=int, default=None, metavar="N",
-                    help="IndentSettings.rescue_newton (default: the setting's, 4 x max_newton)")
     ap.add_argument("--window", type=float, default=10.0, metavar="SECONDS",
                     help="the window of the progress measures (s; default 10)")
     add_physics_arg(ap)
@@ -128,13 +126,11 @@ def main(argv=None) -> None:
         ap.error("--touch or --phantom: expected a touch, got none")
     if not args.window > 0:
         ap.error(f"--window: expected seconds > 0, got {args.window:g}")
-    physics = physics_settings(args)
+    try:
+        physics = physics_settings(args)
+    except ParameterError as exc:
+        ap.error(str(exc))
     settings = physics.indent_settings()
-    if args.rescue_newton is not None:
-        try:
-            settings = dataclasses.replace(settings, rescue_newton=args.rescue_newton)
-        except ParameterError as exc:
-            ap.error(f"--rescue-newton: {exc}")
     w, t = (float(x) for x in args.design.split(":"))
     try:
         design = LatticeDesign(width_mm=w, thickness_mm=t, pitch_mm=12.5, pattern=args.pattern, size_mm=args.size_mm)

@@ -54,6 +54,7 @@ from .errors import MeshError, ParameterError
 from .mechanics.indent import IndentationSolver, IndentSettings
 from .mechanics.indenters import IN_PLANE, INDENTERS, PUNCH_EDGES, check_edge_radius
 from .mechanics.materials import Materials, NeoHookean
+from .mechanics.settings import check_rescue_newton
 from .mesh import MeshSettings, mesh_design
 from .mesh.transfer import interpolation_matrix
 from .metric import relative_change, smallest_reference_rel
@@ -103,6 +104,12 @@ class PhysicsSettings:
         (:class:`~latticeopt.mechanics.IndentSettings` ``rtol``). 1e-4 here, against 1e-6 for the indentation on
         its own: on six paper phantoms V_rel moved by at most 7e-6 (relative), far below the mesh error, with
         7 % fewer Newton iterations and 5 % less time.
+    mechanics_rescue_newton
+        Newton iterations per load step of the rescue of a press about to give up, on projected tangents
+        (:class:`~latticeopt.mechanics.IndentSettings` ``rescue_newton``), 0 to 1000; 0: no rescue. None
+        (default): 4 x the ordinary steps' budget, 160 at nu = 0.49 (240 near incompressibility). A press that
+        cannot converge gives up when this budget is spent, and its error names it: a smaller one gives up
+        sooner, a larger one finishes more of the deepest presses (docs/verification.md).
     measurement_floor_rel
         Instrument resolution relative to the largest reference row, ``0 <= f <= 0.1``: ``V_rel`` divides each
         row's change by ``max(|V_ref|, f max|V_ref|)`` (:mod:`latticeopt.metric`). 0 (default) is paper eq. 5;
@@ -125,6 +132,7 @@ class PhysicsSettings:
     conductivity_measure: str = CONDUCTIVITY_MEASURES[0]
     conductivity_k: float = 0.0
     mechanics_rtol: float = 1e-4
+    mechanics_rescue_newton: int | None = None
     measurement_floor_rel: float = 0.0
 
     def __post_init__(self) -> None:
@@ -140,6 +148,9 @@ class PhysicsSettings:
         for name in ("sigma_S_per_m", "current_A"):
             set_(self, name, v.real(name, getattr(self, name), lo=0, lo_open=True))
         set_(self, "mechanics_rtol", v.real("mechanics_rtol", self.mechanics_rtol, lo=0, lo_open=True, hi=1e-1))
+        if self.mechanics_rescue_newton is not None:
+            set_(self, "mechanics_rescue_newton",
+                 check_rescue_newton(self.mechanics_rescue_newton, "mechanics_rescue_newton"))
         set_(self, "measurement_floor_rel", v.real("measurement_floor_rel", self.measurement_floor_rel, lo=0, hi=1e-1))
         # the complete electrode model divides by z_c (ForwardModel rejects z_c <= 0): 0 would pass here and
         # then fail every phantom
@@ -191,7 +202,7 @@ class PhysicsSettings:
                               hydrogel=NeoHookean(self.hydrogel_shear_kPa, self.hydrogel_poisson_ratio))
         return IndentSettings(materials=materials, indenter=self.indenter, in_plane=self.in_plane,
                               punch_edge=self.punch_edge, edge_radius_mm=self.edge_radius_mm,
-                              rtol=self.mechanics_rtol)
+                              rtol=self.mechanics_rtol, rescue_newton=self.mechanics_rescue_newton)
 
     def as_dict(self) -> dict:
         return dataclasses.asdict(self)

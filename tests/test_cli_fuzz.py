@@ -229,7 +229,8 @@ def _value(cmd: str, action: argparse.Action, f) -> st.SearchStrategy[str]:
                                 "math:pi", "latticeopt.coupled:nothing"])
     if dest == "physics":
         return st.sampled_from(["contact_impedance_ohm_m2=0", "hydrogel_poisson_ratio=0.5", "indenter=sphere",
-                                "sigma_S_per_m=nan", "nokey=1", "=", "mechanics_rtol=1e-3"])
+                                "sigma_S_per_m=nan", "nokey=1", "=", "mechanics_rtol=1e-3",
+                                "mechanics_rescue_newton=-1", "mechanics_rescue_newton=2.5"])
     if action.type is float or dest == "snr":
         return floats
     if action.type is int:

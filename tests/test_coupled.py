@@ -149,6 +149,29 @@ def test_physics_material_keys_accept_exactly_what_the_material_law_accepts(valu
         assert physics_ok == law_ok, (key, value)
 
 
+@pytest.mark.parametrize("value", [-1, 0, 7, 1000, 1001, 2.5, True, "40", float("nan")])
+def test_mechanics_rescue_newton_accepts_exactly_what_the_indentation_accepts(value):
+    """One schema: the [physics] key has no range of its own; a value it accepts reaches the solver unchanged."""
+    from latticeopt.mechanics import IndentSettings
+
+    try:
+        expected = IndentSettings(rescue_newton=value).rescue_newton
+    except ParameterError:
+        expected = None
+    try:
+        got = PhysicsSettings(mechanics_rescue_newton=value).indent_settings().rescue_newton
+    except ParameterError as exc:
+        got = None
+        assert exc.name == "mechanics_rescue_newton"
+    assert got == expected, value
+
+
+def test_mechanics_rescue_newton_defaults_to_four_ordinary_budgets():
+    """Unset, the rescue gets 4 x max_newton: 160 at nu = 0.49, 240 where the gel is near incompressibility."""
+    assert PhysicsSettings().indent_settings().rescue_newton == 160
+    assert PhysicsSettings(hydrogel_poisson_ratio=0.4999).indent_settings().rescue_newton == 240
+
+
 def test_a_separate_mechanics_mesh_that_is_the_same_mesh_changes_nothing(model, tmp_path):
     # settings that differ only in a key the grid mesher ignores: a separate mechanics mesh with the same nodes,
     # so the transfer is the identity and the chain through it must reproduce the plain model

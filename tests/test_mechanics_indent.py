@@ -280,7 +280,9 @@ def test_a_press_creeping_towards_its_depth_gives_up_at_the_third_failure_there(
 
     solver._newton = recording
     with pytest.raises(ConvergenceError, match=r"from depth 1.375 mm towards 1.5 mm .* 4 failed attempts at this "
-                                               r"depth; rescued with projected tangents before"):
+                                               r"depth; rescued with projected tangents before, up to 160 "
+                                               r"iterations a step \(rescue_newton; \[physics\] "
+                                               r"mechanics_rescue_newton\)"):
         solver.solve([(25, 25, 7.5, 1.5)])
     assert [e for e, _ in events] == ["ok", "failed", "ok", "failed", "ok", "failed", "failed"], events
     assert budgets == [(False, 40)] * 6 + [(True, 160)], budgets

@@ -237,7 +237,9 @@ class IndentationSolver(TangentSolves):
                     why = (f"; no progress: {stuck} failed steps in a row" if stuck >= STALL_HALVINGS else
                            f"; no progress: {at_target} failed attempts at this depth" if at_target >= TARGET_FAILURES
                            else "")
-                    rescue = "; rescued with projected tangents before" if rescued else ""
+                    # the budget that ended a rescue, and where to change it
+                    rescue = (f"; rescued with projected tangents before, up to {s.rescue_newton} iterations a step "
+                              f"(rescue_newton; [physics] mechanics_rescue_newton)" if rescued else "")
                     # the sharp rim shears the material under it by the whole depth within one element
                     hint = ("; the punch's edge is sharp: a rounded one (edge_radius_mm, --edge-radius) lets deep "
                             "presses converge that a sharp one cannot (docs/verification.md, \"Rounded punch edge\")"

@@ -15,12 +15,18 @@ from .assembly import VOLUMETRIC
 from .indenters import IN_PLANE, INDENTERS, PUNCH_EDGES, check_edge_radius
 from .materials import Materials
 
-__all__ = ["DOUBLE_ABOVE_KAPPA_OVER_MU", "METHODS", "Converged", "IndentSettings", "IndentationResult"]
+__all__ = ["DOUBLE_ABOVE_KAPPA_OVER_MU", "METHODS", "Converged", "IndentSettings", "IndentationResult",
+           "check_rescue_newton"]
 
 METHODS = ("newton", "newton-krylov")
 #: ``precision="auto"`` factorizes in double precision when some material's ``kappa / mu`` exceeds this
 #: (``nu`` above about 0.4975; the default ``nu = 0.49`` has ``kappa / mu = 50`` and stays in single).
 DOUBLE_ABOVE_KAPPA_OVER_MU = 200.0
+
+
+def check_rescue_newton(rescue_newton, name: str = "rescue_newton") -> int:
+    """``rescue_newton`` validated: an integer from 0 (no rescue) to 1000 iterations per load step."""
+    return v.integer(name, rescue_newton, lo=0, hi=1000)
 
 
 @dataclass(frozen=True)
@@ -145,7 +151,7 @@ class IndentSettings:
         set_(self, "max_newton", v.integer("max_newton", self.max_newton, lo=1, hi=200))
         if self.rescue_newton is None:
             set_(self, "rescue_newton", 4 * self.max_newton)
-        set_(self, "rescue_newton", v.integer("rescue_newton", self.rescue_newton, lo=0, hi=1000))
+        set_(self, "rescue_newton", check_rescue_newton(self.rescue_newton))
         set_(self, "rtol", v.real("rtol", self.rtol, lo=0, lo_open=True, hi=1e-1))
         set_(self, "atol_N", v.real("atol_N", self.atol_N, lo=0))
         set_(self, "step_rtol", v.real("step_rtol", self.step_rtol, lo=0, lo_open=True, hi=1e-1))
