@@ -80,12 +80,14 @@ def test_conforming_rim_recovers_the_disc_area(stack_mesh):
 
 @pytest.mark.slow
 def test_conforming_rim_area_converges(stack_mesh):
-    """Halving the cells shrinks both area errors (convergence to the disc, instead of a measured bound)."""
+    """Finer cells shrink both area errors (convergence to the disc, instead of a measured bound); 2/3 of the
+    2.5 mm cells (20 -> 30 across the 50 mm) cuts the conforming rim's error by more than half at 40 % of halving's
+    cost."""
     from latticeopt import LatticeDesign, MeshSettings, mesh_design
 
     design = LatticeDesign(size_mm=50.0, width_mm=4.0, thickness_mm=3.0)  # conftest's STACK_DESIGN
     coarse = _rim_area_errors(stack_mesh)
-    fine = _rim_area_errors(mesh_design(design, MeshSettings(size_mm=1.25), cache_dir=False))
+    fine = _rim_area_errors(mesh_design(design, MeshSettings(size_mm=50.0 / 30), cache_dir=False))
     assert fine["conforming"] < fine["nodal"], fine
     assert fine["conforming"] < coarse["conforming"] and fine["nodal"] < coarse["nodal"], (coarse, fine)
 
