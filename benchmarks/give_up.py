@@ -130,7 +130,6 @@ def main(argv=None) -> None:
         physics = physics_settings(args)
     except ParameterError as exc:
         ap.error(str(exc))
-    settings = physics.indent_settings()
     w, t = (float(x) for x in args.design.split(":"))
     try:
         design = LatticeDesign(width_mm=w, thickness_mm=t, pitch_mm=12.5, pattern=args.pattern, size_mm=args.size_mm)
@@ -138,7 +137,7 @@ def main(argv=None) -> None:
         ap.error(f"--design, --pattern or --size-mm: {exc}")
     t0 = time.perf_counter()
     mesh = mesh_design(design, MESHES[args.mesh])
-    solver = IndentationSolver(mesh, settings)
+    solver = IndentationSolver(mesh, physics.indent_settings())
     print(f"design {args.design}, {args.mesh} mesh: {mesh.n_nodes} nodes, {solver.op.n_dofs} dofs; mesh and set-up "
           f"{time.perf_counter() - t0:.1f} s; max_newton {solver.settings.max_newton}, rescue_newton "
           f"{solver.settings.rescue_newton}; touches {touches}", flush=True)
