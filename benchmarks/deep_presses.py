@@ -24,7 +24,7 @@ for _var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
 from latticeopt import LatticeDesign, MeshSettings  # noqa: E402
 from latticeopt.cli._physics import add_physics_arg, physics_settings  # noqa: E402
 from latticeopt.coupled import CoupledModel  # noqa: E402
-from latticeopt.errors import ConvergenceError  # noqa: E402
+from latticeopt.errors import ConvergenceError, ParameterError  # noqa: E402
 from latticeopt.study.config import load_study  # noqa: E402
 
 PAPER = os.path.join(os.path.dirname(__file__), "..", "studies", "paper_fig4.toml")
@@ -36,10 +36,22 @@ def paper_phantoms() -> dict:
     return {(p.n_touches, p.index): p for p in study.phantom_set.generate(study.designs[0].size_mm)}
 
 
+def _pair(kind: str, number):
+    """An argparse type for ``A:B`` pairs of ``number`` (``W:T`` designs, ``K:I`` phantoms)."""
+    def parse(text: str):
+        try:
+            a, b = (number(x) for x in text.split(":"))
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {kind} pairs such as {'2:1' if number is float else '1:13'}, "
+                                             f"got {text!r}") from None
+        return a, b
+    return parse
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--designs", nargs="+", default=["2:1"], help="W:T pairs (mm)")
-    ap.add_argument("--phantoms", nargs="*", default=[], help="K:I pairs (touches:index)")
+    ap.add_argument("--designs", nargs="+", type=_pair("W:T", float), default=[(2.0, 1.0)], help="W:T pairs (mm)")
+    ap.add_argument("--phantoms", nargs="*", type=_pair("K:I", int), default=[], help="K:I pairs (touches:index)")
     ap.add_argument("--deepest", type=int, default=0, help="add the N deepest paper phantoms")
     ap.add_argument("--rim", default="none", choices=("none", "channel"))
     ap.add_argument("--json", help="append one JSON line per press to this file")
@@ -49,15 +61,28 @@ def main(argv=None) -> None:
     logging.basicConfig(level=logging.DEBUG if args.v else logging.WARNING, format="%(message)s")
     for name in ("numba", "matplotlib", "latticeopt.mesh", "latticeopt.electrics", "latticeopt.coupled"):
         logging.getLogger(name).setLevel(logging.WARNING)
-    physics = physics_settings(args)
+    if args.deepest < 0:
+        ap.error(f"--deepest: expected an integer >= 0, got {args.deepest}")
+    try:
+        physics = physics_settings(args)
+    except ParameterError as exc:
+        ap.error(str(exc))
+    try:
+        designs = {f"{w:g}:{t:g}": LatticeDesign(width_mm=w, thickness_mm=t, pitch_mm=12.5, rim=args.rim)
+                   for w, t in args.designs}
+    except ParameterError as exc:
+        ap.error(f"--designs: {exc}")
     phantoms = paper_phantoms()
-    keys = [tuple(int(x) for x in p.split(":")) for p in args.phantoms]
+    keys = list(args.phantoms)
+    unknown = [f"{k}:{i}" for k, i in keys if (k, i) not in phantoms]
+    if unknown:
+        have = ", ".join(f"{k}:{min(i for kk, i in phantoms if kk == k)}-{max(i for kk, i in phantoms if kk == k)}"
+                         for k in sorted({k for k, _ in phantoms}))
+        ap.error(f"--phantoms: expected K:I of the paper map ({have}), got {' '.join(unknown)}")
     deepest = sorted(phantoms, key=lambda k: -max(t.depth_mm for t in phantoms[k].touches))
     keys += [k for k in deepest[:args.deepest] if k not in keys]
     mesh = MeshSettings(size_mm=2.0, channel_cells=2, layer_cells=2, electrode_edges=False)
-    for d in args.designs:
-        w, t = (float(x) for x in d.split(":"))
-        design = LatticeDesign(width_mm=w, thickness_mm=t, pitch_mm=12.5, rim=args.rim)
+    for d, design in designs.items():
         model = CoupledModel(design, mesh, physics)
         for k in keys:
             touches = phantoms[k].touches

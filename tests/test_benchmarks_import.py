@@ -1,5 +1,6 @@
 """The benchmark scripts are not run by the tests (they take minutes to hours), but every name they import
-from latticeopt must still exist: a renamed or moved helper breaks them silently otherwise."""
+from latticeopt must still exist: a renamed or moved helper breaks them silently otherwise. Their argument
+checks are cheap, so those run: bad input is a one-line usage error before any work."""
 
 from __future__ import annotations
 
@@ -29,3 +30,21 @@ def test_every_latticeopt_name_a_benchmark_imports_exists(script):
                 if alias.name.split(".")[0] == "latticeopt":
                     importlib.import_module(alias.name)
     assert not missing, f"{script.name} imports names latticeopt no longer has: {missing}"
+
+
+PHYSICS_SCRIPTS = [p for p in BENCHMARKS if "add_physics_arg(" in p.read_text()]
+
+
+@pytest.mark.parametrize("script", PHYSICS_SCRIPTS, ids=lambda p: p.name)
+def test_a_bad_physics_value_is_a_usage_error_not_a_traceback(script):
+    import subprocess
+    import sys
+
+    assert PHYSICS_SCRIPTS, "no benchmark takes --physics any more: drop this test"
+    required = {"give_up.py": ["--touch", "25,25,7.5,1"]}.get(script.name, [])
+    run = subprocess.run([sys.executable, str(script), *required, "--physics", "mechanics_rescue_newton=-1"],
+                         capture_output=True, text=True, timeout=120)
+    assert run.returncode == 2, run.stderr
+    assert "Traceback" not in run.stderr
+    assert run.stderr.strip().splitlines()[-1].endswith(
+        "error: --physics mechanics_rescue_newton: expected an integer 0 <= mechanics_rescue_newton <= 1000, got -1")
