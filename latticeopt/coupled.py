@@ -51,6 +51,7 @@ from .electrics.forward import (
     ForwardModel,
 )
 from .errors import MeshError, ParameterError
+from .linalg import single_threaded_blas
 from .mechanics.indent import IndentationSolver, IndentSettings
 from .mechanics.indenters import IN_PLANE, INDENTERS, PUNCH_EDGES, check_edge_radius
 from .mechanics.materials import Materials, NeoHookean
@@ -309,6 +310,7 @@ class CoupledModel:
         meant to be coarse.
     """
 
+    @single_threaded_blas()
     def __init__(self, design: LatticeDesign, mesh_settings: MeshSettings | None = None,
                  physics: PhysicsSettings | None = None, cache_dir=None, mechanics_mesh: MeshSettings | None = None):
         t0 = time.perf_counter()
@@ -338,6 +340,7 @@ class CoupledModel:
                                         warn=False)
         self.setup_seconds = time.perf_counter() - t0
 
+    @single_threaded_blas()
     def simulate(self, touches, progress=None) -> SimulationResult:
         """Indent with ``touches`` and measure (see the module docstring); ``progress``: as for
         :meth:`~latticeopt.mechanics.IndentationSolver.solve`."""

@@ -15,6 +15,7 @@ iterations, whose convergence is judged on the double-precision residual anyway.
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import glob
 import logging
@@ -28,6 +29,28 @@ log = logging.getLogger(__name__)
 
 BACKENDS = ("auto", "pardiso", "scipy")
 PRECISIONS = ("double", "single")
+_OPENBLAS = None  # threadpoolctl's handle on the loaded OpenBLAS libraries, made at first use
+
+
+@contextlib.contextmanager
+def single_threaded_blas():
+    """OpenBLAS on one thread inside the block (its count is restored after); MKL, and so PARDISO, keeps its own.
+
+    Used as a context manager or a decorator around in-process presses and solves. OpenBLAS threads that finish a
+    call go on spinning for a while, and a press interleaves small BLAS calls (numpy, scipy) with PARDISO
+    factorizations: on 2 cores the spinning threads took the cores PARDISO's threads needed. With OpenBLAS on one
+    thread presses ran 1.3-1.5x faster on the paper map's 2 mm mesh, 1.3x on 1.4 mm and 2.3x on 4 mm
+    (``benchmarks/mkl_threads.py``, docs/performance.md); OpenBLAS's own threads bought nothing on these presses.
+    Worker processes start with one thread for every library, so there it changes nothing.
+    """
+    global _OPENBLAS
+    if _OPENBLAS is None:
+        import scipy.linalg  # noqa: F401  (loads scipy's own OpenBLAS, beside numpy's, before the handle lists them)
+        from threadpoolctl import ThreadpoolController
+
+        _OPENBLAS = ThreadpoolController().select(internal_api="openblas")
+    with _OPENBLAS.limit(limits=1):
+        yield
 
 
 def _pardiso_parameters(mtype: int, single: bool) -> dict[int, int]:

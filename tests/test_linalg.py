@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+import scipy.linalg  # noqa: F401  (loads scipy's OpenBLAS beside numpy's, so the thread tests set both)
 import scipy.sparse as sp
 
 from latticeopt.linalg import SymmetricSolver, gmres, pardiso_available
@@ -117,3 +118,35 @@ def test_only_the_upper_triangle_is_read(system, backend):
     A, b = system
     x = SymmetricSolver(sp.triu(A, format="csr"), backend=backend).solve(b)
     assert np.linalg.norm(A @ x - b) <= 1e-10 * np.linalg.norm(b)
+
+
+def _openblas_threads() -> set[int]:
+    from threadpoolctl import threadpool_info
+
+    return {lib["num_threads"] for lib in threadpool_info() if lib["internal_api"] == "openblas"}
+
+
+def test_single_threaded_blas_holds_openblas_at_one_thread_and_restores_it():
+    from threadpoolctl import threadpool_limits
+
+    from latticeopt.linalg import single_threaded_blas
+
+    with threadpool_limits(limits=2, user_api="blas"):
+        if _openblas_threads() != {2}:
+            pytest.skip(f"no OpenBLAS that runs 2 threads here: {_openblas_threads()}")
+        with single_threaded_blas():
+            assert _openblas_threads() == {1}
+        assert _openblas_threads() == {2}
+
+
+def test_a_press_runs_on_one_openblas_thread(stack_solver):
+    from threadpoolctl import threadpool_limits
+
+    seen = []
+    with threadpool_limits(limits=2, user_api="blas"):
+        if _openblas_threads() != {2}:
+            pytest.skip(f"no OpenBLAS that runs 2 threads here: {_openblas_threads()}")
+        stack_solver.solve([(25, 25, 7.5, 1.0)], progress=lambda d, final: seen.append(_openblas_threads()))
+        after = _openblas_threads()
+    assert seen and all(s == {1} for s in seen), seen
+    assert after == {2}

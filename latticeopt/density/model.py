@@ -41,6 +41,7 @@ from ..electrics.forward import ForwardModel
 from ..electrics.sensitivity import weighted_sensitivities
 from ..errors import ParameterError
 from ..execution import run_tasks
+from ..linalg import single_threaded_blas
 from ..mechanics.indent import IndentationSolver
 from ..mechanics.sensitivity import moduli_sensitivity, stretch_pnorm
 from ..mesh import MeshSettings
@@ -194,6 +195,7 @@ class DensityModel:
         """
         return self.network.isolation(density, p)
 
+    @single_threaded_blas()
     def evaluate(self, density: np.ndarray, phantoms, gradient: bool = True,
                  warm: list[np.ndarray | None] | None = None, jobs: int = 1) -> DensityEvaluation:
         """``V_rel``, force and stretch of ``density`` over ``phantoms`` (lists of touches), with gradients.
@@ -239,6 +241,7 @@ class DensityModel:
             dforce_ddensity=mean("dforce"), dstretch_ddensity=mean("dstretch"), presses=tuple(presses),
             reference_voltages=v_ref)
 
+    @single_threaded_blas()
     def reference_voltages(self, density: np.ndarray) -> np.ndarray:
         """The untouched layout's measurements (V), shape ``(n_rows,)``: the rows V_rel divides by. One electrics
         solve, no press."""

@@ -42,7 +42,7 @@ import numpy as np
 
 from ..design import REGION_IDS
 from ..errors import ConvergenceError
-from ..linalg import SymmetricSolver
+from ..linalg import SymmetricSolver, single_threaded_blas
 from ..mesh.tetmesh import TetMesh
 from ..touches import Touch, check_touches, touch_name
 from .assembly import Evaluation, NeoHookeanOperator
@@ -141,6 +141,7 @@ class IndentationSolver(TangentSolves):
         other._adjoint_factor = None
         return other
 
+    @single_threaded_blas()
     def solve(self, touches, u0: np.ndarray | None = None, progress=None) -> IndentationResult:
         """Indent with ``touches`` (Touch objects or ``(x, y, r, d)`` sequences, mm); see the module docstring.
 
