@@ -23,18 +23,14 @@ for _var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 import numpy as np  # noqa: E402
+from _common import mesh_level  # noqa: E402  (this folder's neighbour)
 
-from latticeopt import LatticeDesign, MeshSettings, PhysicsSettings, Touch  # noqa: E402
+from latticeopt import LatticeDesign, PhysicsSettings, Touch  # noqa: E402
 from latticeopt.conductivity import conductivity_factor, patch_measures  # noqa: E402
 from latticeopt.coupled import CoupledModel, relative_change  # noqa: E402
 from latticeopt.mechanics.assembly import dilatation_patches  # noqa: E402
 
 DEFAULT_LAWS = ["geometry", "power:J:-1", "linear:J:2", "linear:thickness:2", "power:thickness:-2"]
-
-
-def _level(text: str) -> MeshSettings:
-    size, channel, layer = text.split(":")
-    return MeshSettings(size_mm=float(size), channel_cells=int(channel), layer_cells=int(layer))
 
 
 def _law(text: str) -> tuple[str, str, float]:
@@ -86,7 +82,7 @@ def main() -> None:
     laws = {name: _law(name) for name in a.laws}
     rows = []
     for text in a.levels:
-        v, s = run_level(design, _level(text), physics, touch, laws)
+        v, s = run_level(design, mesh_level(text), physics, touch, laws)
         rows.append((text, v, s))
         print(f"# {text}: {s['n_nodes']} nodes, {s['newton']} Newton steps, {s['seconds']:.0f} s "
               f"(mechanics {s['mechanics_s']:.0f} s); " + ", ".join(f"{k} {val:.5f}" for k, val in v.items()),

@@ -28,6 +28,7 @@ for _var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 import numpy as np  # noqa: E402
+from _common import mesh_level  # noqa: E402  (this folder's neighbour)
 
 from latticeopt import LatticeDesign, MeshSettings  # noqa: E402
 from latticeopt.cli._physics import add_physics_arg, physics_settings, physics_values  # noqa: E402
@@ -41,18 +42,6 @@ def settings_for(size_mm: float) -> MeshSettings:
     """Refinement ladder: cells across a channel and through the layer grow as the size shrinks."""
     cells = max(1, int(round(4.0 / size_mm)))
     return MeshSettings(size_mm=size_mm, channel_cells=cells, layer_cells=max(2, cells))
-
-
-def _level(text: str) -> MeshSettings:
-    try:
-        size, channel, layer, *edges = text.split(":")
-        if edges not in ([], ["0"], ["1"]):
-            raise ValueError(text)
-        return MeshSettings(size_mm=float(size), channel_cells=int(channel), layer_cells=int(layer),
-                            electrode_edges=edges != ["0"])
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"--levels: expected SIZE:CHANNEL_CELLS:LAYER_CELLS[:ELECTRODE_EDGES 0|1], got {text!r}") from None
 
 
 def _run(args):
@@ -77,7 +66,7 @@ def main() -> None:
     ap.add_argument("--rim", default="none", choices=["none", "channel"])
     ap.add_argument("--press", action="store_true", help="add the centre press (50, 50, r 8.75, 4 mm) first")
     ap.add_argument("--per-phantom", action="store_true", help="print each phantom's V_rel per level")
-    ap.add_argument("--levels", type=_level, nargs="+", default=None,
+    ap.add_argument("--levels", type=mesh_level, nargs="+", default=None,
                     help="explicit meshes SIZE:CHANNEL_CELLS:LAYER_CELLS[:0] (replaces --sizes; a trailing :0 "
                          "leaves out the grid lines on electrode edges)")
     add_physics_arg(ap)

@@ -21,6 +21,8 @@ import time
 for _var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
+from _common import pair  # noqa: E402  (this folder's neighbour)
+
 from latticeopt import LatticeDesign, MeshSettings  # noqa: E402
 from latticeopt.cli._physics import add_physics_arg, physics_settings  # noqa: E402
 from latticeopt.coupled import CoupledModel  # noqa: E402
@@ -36,22 +38,12 @@ def paper_phantoms() -> dict:
     return {(p.n_touches, p.index): p for p in study.phantom_set.generate(study.designs[0].size_mm)}
 
 
-def _pair(kind: str, number):
-    """An argparse type for ``A:B`` pairs of ``number`` (``W:T`` designs, ``K:I`` phantoms)."""
-    def parse(text: str):
-        try:
-            a, b = (number(x) for x in text.split(":"))
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected {kind} pairs such as {'2:1' if number is float else '1:13'}, "
-                                             f"got {text!r}") from None
-        return a, b
-    return parse
-
-
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--designs", nargs="+", type=_pair("W:T", float), default=[(2.0, 1.0)], help="W:T pairs (mm)")
-    ap.add_argument("--phantoms", nargs="*", type=_pair("K:I", int), default=[], help="K:I pairs (touches:index)")
+    ap.add_argument("--designs", nargs="+", type=pair("W:T", float, "2:1"), default=[(2.0, 1.0)],
+                    help="W:T pairs (mm)")
+    ap.add_argument("--phantoms", nargs="*", type=pair("K:I", int, "1:13"), default=[],
+                    help="K:I pairs (touches:index)")
     ap.add_argument("--deepest", type=int, default=0, help="add the N deepest paper phantoms")
     ap.add_argument("--rim", default="none", choices=("none", "channel"))
     ap.add_argument("--json", help="append one JSON line per press to this file")

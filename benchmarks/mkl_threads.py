@@ -28,7 +28,9 @@ import subprocess
 import sys
 import time
 
-from latticeopt import LatticeDesign, MeshSettings
+from _common import mesh_level, pair
+
+from latticeopt import LatticeDesign
 from latticeopt.cli._physics import add_physics_arg, physics_settings
 from latticeopt.errors import ParameterError
 from latticeopt.linalg import pardiso_available
@@ -39,31 +41,11 @@ PAPER = os.path.join(os.path.dirname(__file__), "..", "studies", "paper_fig4.tom
 SETTINGS = ("", "MKL_NUM_THREADS=1", "OMP_NUM_THREADS=1,MKL_NUM_THREADS=1,OPENBLAS_NUM_THREADS=1,NUMBA_NUM_THREADS=1")
 
 
-def _level(text: str) -> MeshSettings:
-    try:
-        size, channel, layer, *edges = text.split(":")
-        if edges not in ([], ["0"], ["1"]):
-            raise ValueError(text)
-        return MeshSettings(size_mm=float(size), channel_cells=int(channel), layer_cells=int(layer),
-                            electrode_edges=edges != ["0"])
-    except (ValueError, ParameterError):
-        raise argparse.ArgumentTypeError(
-            f"expected SIZE:CHANNEL_CELLS:LAYER_CELLS[:ELECTRODE_EDGES 0|1], got {text!r}") from None
-
-
 def _setting(text: str) -> dict[str, str]:
     env = dict(item.split("=", 1) for item in text.split(",") if "=" in item)
     if len(env) != len([item for item in text.split(",") if item]) or any(not k for k in env):
         raise argparse.ArgumentTypeError(f"expected NAME=VALUE,... or \"\", got {text!r}")
     return env
-
-
-def _phantom(text: str) -> tuple[int, int]:
-    try:
-        k, i = (int(x) for x in text.split(":"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected K:I pairs such as 1:13, got {text!r}") from None
-    return k, i
 
 
 def _child(args, design, physics, phantoms) -> None:
@@ -89,9 +71,9 @@ def _child(args, design, physics, phantoms) -> None:
 
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--levels", nargs="+", type=_level, default=[_level("2:2:2:0"), _level("1.4:3:3:0")],
+    ap.add_argument("--levels", nargs="+", type=mesh_level, default=[mesh_level("2:2:2:0"), mesh_level("1.4:3:3:0")],
                     help="mesh levels SIZE:CHANNEL_CELLS:LAYER_CELLS[:ELECTRODE_EDGES] (default 2:2:2:0 1.4:3:3:0)")
-    ap.add_argument("--phantoms", nargs="+", type=_phantom, default=[(1, 13), (2, 0)],
+    ap.add_argument("--phantoms", nargs="+", type=pair("K:I", int, "1:13"), default=[(1, 13), (2, 0)],
                     help="paper-map phantoms K:I (default 1:13, the deep press, and 2:0)")
     ap.add_argument("--design", default="2:1", help="W:T (mm), pitch 12.5 mm (default 2:1)")
     ap.add_argument("--settings", nargs="+", type=_setting, default=[_setting(x) for x in SETTINGS],
