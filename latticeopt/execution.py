@@ -16,14 +16,11 @@ frames use it without importing the orchestration.
 from __future__ import annotations
 
 import contextlib
-import ctypes
 import hashlib
 import logging
 import os
-import re
 import signal
 import warnings
-from pathlib import Path
 
 from .errors import LatticeoptError, ParameterError
 
@@ -38,37 +35,21 @@ _INFLIGHT_PER_WORKER = 2
 #: and the new worker builds the model again (a few seconds; 11 replacements in the paper map's 2 h fine pass).
 #: That is routine, not a fault to warn about.
 _LOKY_REPLACED_WORKER = "A worker stopped while some jobs were given to the executor"
-_BLAS_GETTERS = ("scipy_openblas_get_num_threads64_", "scipy_openblas_get_num_threads", "openblas_get_num_threads64_",
-                 "openblas_get_num_threads", "MKL_Get_Max_Threads", "omp_get_max_threads")
 
 
 def blas_threads() -> dict[str, int]:
-    """Thread counts reported by the BLAS/MKL/OpenMP libraries loaded in this process (Linux; else ``{}``).
+    """Thread counts reported by the BLAS/MKL/OpenMP libraries loaded in this process (threadpoolctl).
 
     Returns
     -------
     dict
-        ``"library:getter" -> threads`` for every loaded OpenBLAS, MKL runtime and OpenMP runtime.
+        ``"library file:internal API" -> threads`` (``"libmkl_rt.so.3:mkl" -> 1``) for every loaded OpenBLAS,
+        MKL, BLIS and OpenMP runtime.
     """
-    maps = Path("/proc/self/maps")
-    if not maps.exists():
-        return {}
-    out: dict[str, int] = {}
-    paths = {line.split()[-1] for line in maps.read_text().splitlines() if len(line.split()) >= 6}
-    for path in sorted(paths):
-        if not re.search(r"openblas|mkl_rt|libgomp|libiomp|libomp", os.path.basename(path)):
-            continue
-        try:
-            lib = ctypes.CDLL(path)
-        except OSError:
-            continue
-        for sym in _BLAS_GETTERS:
-            fn = getattr(lib, sym, None)
-            if fn is not None:
-                fn.restype = ctypes.c_int
-                out[f"{os.path.basename(path)}:{sym}"] = int(fn())
-                break
-    return out
+    from threadpoolctl import threadpool_info
+
+    return {f"{os.path.basename(lib['filepath'])}:{lib['internal_api']}": int(lib["num_threads"])
+            for lib in threadpool_info()}
 
 
 def _worker_init(environment: str) -> None:
