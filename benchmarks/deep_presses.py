@@ -21,21 +21,12 @@ import time
 for _var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
-from _common import pair  # noqa: E402  (this folder's neighbour)
+from _common import check_paper_keys, pair, paper_phantoms  # noqa: E402  (this folder's neighbour)
 
 from latticeopt import LatticeDesign, MeshSettings  # noqa: E402
 from latticeopt.cli._physics import add_physics_arg, physics_settings  # noqa: E402
 from latticeopt.coupled import CoupledModel  # noqa: E402
 from latticeopt.errors import ConvergenceError, ParameterError  # noqa: E402
-from latticeopt.study.config import load_study  # noqa: E402
-
-PAPER = os.path.join(os.path.dirname(__file__), "..", "studies", "paper_fig4.toml")
-
-
-def paper_phantoms() -> dict:
-    """``(n_touches, index) -> Phantom`` of the paper map."""
-    study = load_study(PAPER)
-    return {(p.n_touches, p.index): p for p in study.phantom_set.generate(study.designs[0].size_mm)}
 
 
 def main(argv=None) -> None:
@@ -65,12 +56,8 @@ def main(argv=None) -> None:
     except ParameterError as exc:
         ap.error(f"--designs: {exc}")
     phantoms = paper_phantoms()
+    check_paper_keys(ap, args.phantoms, phantoms)
     keys = list(args.phantoms)
-    unknown = [f"{k}:{i}" for k, i in keys if (k, i) not in phantoms]
-    if unknown:
-        have = ", ".join(f"{k}:{min(i for kk, i in phantoms if kk == k)}-{max(i for kk, i in phantoms if kk == k)}"
-                         for k in sorted({k for k, _ in phantoms}))
-        ap.error(f"--phantoms: expected K:I of the paper map ({have}), got {' '.join(unknown)}")
     deepest = sorted(phantoms, key=lambda k: -max(t.depth_mm for t in phantoms[k].touches))
     keys += [k for k in deepest[:args.deepest] if k not in keys]
     mesh = MeshSettings(size_mm=2.0, channel_cells=2, layer_cells=2, electrode_edges=False)

@@ -28,15 +28,13 @@ import subprocess
 import sys
 import time
 
-from _common import mesh_level, pair
+from _common import check_paper_keys, mesh_level, pair, paper_phantoms
 
 from latticeopt import LatticeDesign
 from latticeopt.cli._physics import add_physics_arg, physics_settings
 from latticeopt.errors import ParameterError
 from latticeopt.linalg import pardiso_available
-from latticeopt.study.config import load_study
 
-PAPER = os.path.join(os.path.dirname(__file__), "..", "studies", "paper_fig4.toml")
 #: no variable; MKL on one; everything on one, as in a worker process
 SETTINGS = ("", "MKL_NUM_THREADS=1", "OMP_NUM_THREADS=1,MKL_NUM_THREADS=1,OPENBLAS_NUM_THREADS=1,NUMBA_NUM_THREADS=1")
 
@@ -75,7 +73,8 @@ def main(argv=None) -> None:
                     help="mesh levels SIZE:CHANNEL_CELLS:LAYER_CELLS[:ELECTRODE_EDGES] (default 2:2:2:0 1.4:3:3:0)")
     ap.add_argument("--phantoms", nargs="+", type=pair("K:I", int, "1:13"), default=[(1, 13), (2, 0)],
                     help="paper-map phantoms K:I (default 1:13, the deep press, and 2:0)")
-    ap.add_argument("--design", default="2:1", help="W:T (mm), pitch 12.5 mm (default 2:1)")
+    ap.add_argument("--design", type=pair("W:T", float, "2:1"), default=(2.0, 1.0),
+                    help="W:T (mm), pitch 12.5 mm (default 2:1)")
     ap.add_argument("--settings", nargs="+", type=_setting, default=[_setting(x) for x in SETTINGS],
                     help="environments NAME=VALUE,... to compare; \"\" for none (default: %(default)s)")
     ap.add_argument("--repeats", type=int, default=2, help="presses per setting (default 2)")
@@ -91,17 +90,13 @@ def main(argv=None) -> None:
     except ParameterError as exc:
         ap.error(str(exc))
     try:
-        w, t = (float(x) for x in args.design.split(":"))
-        design = LatticeDesign(width_mm=w, thickness_mm=t, pitch_mm=12.5)
-    except (ValueError, ParameterError) as exc:
-        ap.error(f"--design: expected W:T in mm such as 2:1, got {args.design!r} ({exc})")
+        design = LatticeDesign(width_mm=args.design[0], thickness_mm=args.design[1], pitch_mm=12.5)
+    except ParameterError as exc:
+        ap.error(f"--design: {exc}")
     if not pardiso_available():
         ap.error("pypardiso is not installed: nothing runs on MKL threads")
-    study = load_study(PAPER)
-    phantoms = {(p.n_touches, p.index): p for p in study.phantom_set.generate(design.size_mm)}
-    unknown = [f"{k}:{i}" for k, i in args.phantoms if (k, i) not in phantoms]
-    if unknown:
-        ap.error(f"--phantoms: not phantoms of the paper map: {' '.join(unknown)}")
+    phantoms = paper_phantoms()
+    check_paper_keys(ap, args.phantoms, phantoms)
     if args.child:
         _child(args, design, physics, phantoms)
         return
@@ -117,7 +112,8 @@ def main(argv=None) -> None:
                 runs.setdefault((row["level"], row["nodes"], row["phantom"]), {}).setdefault(j, []).append(row)
             print(f"  repeat {r + 1}, {names[j]}: done", file=sys.stderr, flush=True)
     depth = {f"{k}:{i}": max(t.depth_mm for t in phantoms[k, i].touches) for k, i in args.phantoms}
-    print(f"design {args.design}, {args.repeats} presses per setting, each in a fresh process\n")
+    print(f"design {args.design[0]:g}:{args.design[1]:g}, {args.repeats} presses per setting, "
+          "each in a fresh process\n")
     print("| mesh | nodes | phantom | depth (mm) | setting | MKL threads | seconds (median, range) | CPU s per s "
           "| Newton | tangent factorizations | V_rel repeats | ratio to the first |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|")
@@ -134,6 +130,7 @@ def main(argv=None) -> None:
                   f"| {'/'.join(sorted({str(row['factorizations']) for row in rows}))} "
                   f"| {'same' if len(values) == 1 else f'{len(values)} values'} "
                   f"| {base / statistics.median(secs):.2f} |")
+
 
 if __name__ == "__main__":
     main()

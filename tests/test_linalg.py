@@ -126,27 +126,27 @@ def _openblas_threads() -> set[int]:
     return {lib["num_threads"] for lib in threadpool_info() if lib["internal_api"] == "openblas"}
 
 
-def test_single_threaded_blas_holds_openblas_at_one_thread_and_restores_it():
+@pytest.fixture
+def openblas_on_two_threads():
+    """OpenBLAS set to 2 threads for the test (the suite's processes start on one), restored after."""
     from threadpoolctl import threadpool_limits
 
+    with threadpool_limits(limits=2, user_api="blas"):
+        if _openblas_threads() != {2}:
+            pytest.skip(f"no OpenBLAS that runs 2 threads here: {_openblas_threads()}")
+        yield
+
+
+def test_single_threaded_blas_holds_openblas_at_one_thread_and_restores_it(openblas_on_two_threads):
     from latticeopt.linalg import single_threaded_blas
 
-    with threadpool_limits(limits=2, user_api="blas"):
-        if _openblas_threads() != {2}:
-            pytest.skip(f"no OpenBLAS that runs 2 threads here: {_openblas_threads()}")
-        with single_threaded_blas():
-            assert _openblas_threads() == {1}
-        assert _openblas_threads() == {2}
+    with single_threaded_blas():
+        assert _openblas_threads() == {1}
+    assert _openblas_threads() == {2}
 
 
-def test_a_press_runs_on_one_openblas_thread(stack_solver):
-    from threadpoolctl import threadpool_limits
-
+def test_a_press_runs_on_one_openblas_thread(stack_solver, openblas_on_two_threads):
     seen = []
-    with threadpool_limits(limits=2, user_api="blas"):
-        if _openblas_threads() != {2}:
-            pytest.skip(f"no OpenBLAS that runs 2 threads here: {_openblas_threads()}")
-        stack_solver.solve([(25, 25, 7.5, 1.0)], progress=lambda d, final: seen.append(_openblas_threads()))
-        after = _openblas_threads()
+    stack_solver.solve([(25, 25, 7.5, 1.0)], progress=lambda d, final: seen.append(_openblas_threads()))
     assert seen and all(s == {1} for s in seen), seen
-    assert after == {2}
+    assert _openblas_threads() == {2}
